@@ -1,0 +1,205 @@
+"""Small networks for SAC: tanh-Gaussian actor, fused twin critic, observation normaliser.
+
+The paper's "Arm Motion Generation" section builds on SAC with the clipped double-Q trick; its
+controller module is a few ReLU dense layers. These modules take already flattened (and, for
+images, already encoded) features, so the stage-2 residual agent can reuse them on top of its
+own encoder. :class:`NumpyActor` is an inference-only copy of the actor's forward pass in numpy
+for sub-0.1 ms actions at batch 1 on a CPU, where torch's per-op overhead dominates.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+def mlp(input_dim: int, hidden_sizes: tuple[int, ...], output_dim: int) -> nn.Sequential:
+    """Linear-ReLU stack: input_dim -> hidden_sizes... -> output_dim (no output activation)."""
+    layers: list[nn.Module] = []
+    for size in hidden_sizes:
+        layers += [nn.Linear(input_dim, size), nn.ReLU()]
+        input_dim = size
+    layers.append(nn.Linear(input_dim, output_dim))
+    return nn.Sequential(*layers)
+
+
+class Actor(nn.Module):
+    """Tanh-squashed diagonal Gaussian policy ``pi(a | s, g)`` over actions in [-1, 1]^A."""
+
+    def __init__(
+        self,
+        input_dim: int,
+        action_dim: int,
+        hidden_sizes: tuple[int, ...],
+        log_std_bounds: tuple[float, float],
+    ) -> None:
+        super().__init__()
+        self.action_dim = action_dim
+        self.log_std_bounds = log_std_bounds
+        self.trunk = mlp(input_dim, hidden_sizes, 2 * action_dim)
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pre-squash mean and log standard deviation, each (B, A), from features (B, D)."""
+        mean, raw_log_std = self.trunk(features).chunk(2, dim=-1)
+        # Smoothly bounded log std (as in DrQ-v2's SAC ancestor) keeps exp() finite.
+        low, high = self.log_std_bounds
+        log_std = low + 0.5 * (high - low) * (torch.tanh(raw_log_std) + 1.0)
+        return mean, log_std
+
+    def sample(
+        self, features: torch.Tensor, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Reparameterised action (B, A) in (-1, 1) and its log-probability (B,)."""
+        mean, log_std = self(features)
+        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+        pre_squash = mean + log_std.exp() * noise
+        action = torch.tanh(pre_squash)
+        # log N(u; mean, std) - log|d tanh(u)/du|, with log(1 - tanh(u)^2) written stably as
+        # 2 (log 2 - u - softplus(-2u)).
+        gaussian = -0.5 * noise.pow(2) - log_std - _LOG_SQRT_2PI
+        squash = 2.0 * (math.log(2.0) - pre_squash - F.softplus(-2.0 * pre_squash))
+        return action, (gaussian - squash).sum(-1)
+
+    def mode(self, features: torch.Tensor) -> torch.Tensor:
+        """Deterministic action tanh(mean), (B, A)."""
+        return torch.tanh(self(features)[0])
+
+
+class EnsembleLinear(nn.Module):
+    """``num_members`` independent linear layers applied in one batched matmul.
+
+    Maps (E, B, in_features) to (E, B, out_features); initialised like ``nn.Linear``.
+    """
+
+    def __init__(self, num_members: int, in_features: int, out_features: int) -> None:
+        super().__init__()
+        bound = 1.0 / math.sqrt(in_features)
+        self.weight = nn.Parameter(
+            torch.empty(num_members, in_features, out_features).uniform_(-bound, bound)
+        )
+        self.bias = nn.Parameter(torch.empty(num_members, 1, out_features).uniform_(-bound, bound))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.baddbmm(self.bias, x, self.weight)
+
+
+class EnsembleCritic(nn.Module):
+    """``num_q`` Q-functions ``Q(s, g, a)`` evaluated in one pass (clipped double-Q when 2).
+
+    Every layer is an :class:`EnsembleLinear`; the input is broadcast to the members without a
+    copy, and activations stay contiguous (num_q, B, width) so each layer is one batched matmul.
+    """
+
+    def __init__(
+        self, input_dim: int, action_dim: int, hidden_sizes: tuple[int, ...], num_q: int = 2
+    ) -> None:
+        super().__init__()
+        self.num_q = num_q
+        sizes = [input_dim + action_dim, *hidden_sizes, 1]
+        self.layers = nn.ModuleList(
+            EnsembleLinear(num_q, sizes[i], sizes[i + 1]) for i in range(len(sizes) - 1)
+        )
+
+    def forward(self, features: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Q-values (num_q, B) from features (B, D) and actions (B, A)."""
+        x = torch.cat([features, action], dim=-1)
+        hidden = x.expand(self.num_q, *x.shape)
+        for layer in self.layers[:-1]:
+            hidden = F.relu(layer(hidden))
+        return self.layers[-1](hidden).squeeze(-1)
+
+
+class RunningNormalizer(nn.Module):
+    """Per-feature running mean/std normalisation, clipped to [-clip, clip].
+
+    Goal-conditioned SAC/HER normalises its inputs (Andrychowicz et al., 2017): joint angles
+    (radians, spread over +-2pi) and goals (metres, a 0.4 m box) differ in scale by an order of
+    magnitude. Statistics are merged batch by batch (Chan et al.'s parallel variance) in float64.
+    """
+
+    count: torch.Tensor
+    mean: torch.Tensor
+    sq_dev_sum: torch.Tensor
+    std: torch.Tensor
+
+    def __init__(self, num_features: int, clip: float, min_std: float = 1e-2) -> None:
+        super().__init__()
+        self.clip = clip
+        self.min_std = min_std
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("mean", torch.zeros(num_features, dtype=torch.float64))
+        self.register_buffer("sq_dev_sum", torch.zeros(num_features, dtype=torch.float64))
+        # float32 copies used by forward() and by NumpyActor (which views them).
+        self.register_buffer("mean32", torch.zeros(num_features))
+        self.register_buffer("std", torch.ones(num_features))
+
+    @torch.no_grad()
+    def update(self, features: torch.Tensor) -> None:
+        """Merge a batch (B, D) into the statistics."""
+        batch = features.to(torch.float64)
+        batch_count = float(len(batch))
+        batch_mean = batch.mean(0)
+        delta = batch_mean - self.mean
+        total = self.count + batch_count
+        self.mean += delta * (batch_count / total)
+        self.sq_dev_sum += (batch - batch_mean).pow(2).sum(0) + delta.pow(2) * (
+            self.count * batch_count / total
+        )
+        self.count.copy_(total)
+        self.mean32.copy_(self.mean)
+        self.std.copy_((self.sq_dev_sum / self.count).sqrt().clamp_min(self.min_std))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return ((features - self.mean32) / self.std).clamp(-self.clip, self.clip)
+
+
+class NumpyActor:
+    """The actor's forward pass in numpy, sharing memory with the torch parameters.
+
+    The arrays are views of the (CPU) parameter tensors, which the optimiser and
+    ``load_state_dict`` update in place, so this never goes stale. Rebuild it if parameters are
+    replaced rather than updated.
+    """
+
+    def __init__(self, actor: Actor, normalizer: RunningNormalizer | None) -> None:
+        linears = [m for m in actor.trunk if isinstance(m, nn.Linear)]
+        # (in, out) views of torch's (out, in) weights, so that x @ w works for x (D,) or (B, D).
+        weights = [layer.weight.detach().numpy().T for layer in linears]
+        biases = [layer.bias.detach().numpy() for layer in linears]
+        self._hidden = list(zip(weights[:-1], biases[:-1], strict=True))
+        a = actor.action_dim
+        self._mean_w, self._mean_b = weights[-1][:, :a], biases[-1][:a]
+        self._log_std_w, self._log_std_b = weights[-1][:, a:], biases[-1][a:]
+        self._log_std_bounds = actor.log_std_bounds
+        self._norm = None
+        if normalizer is not None:
+            self._norm = (
+                normalizer.mean32.numpy(),
+                normalizer.std.numpy(),
+                normalizer.clip,
+            )
+
+    def __call__(
+        self, features: np.ndarray, deterministic: bool, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Action (A,) or (B, A) float32 for float32 features (D,) or (B, D)."""
+        x = features
+        if self._norm is not None:
+            mean, std, clip = self._norm
+            x = np.clip((x - mean) / std, -clip, clip)
+        for weight, bias in self._hidden:
+            x = x @ weight + bias
+            np.maximum(x, 0.0, out=x)
+        pre_squash = x @ self._mean_w + self._mean_b
+        if not deterministic:
+            low, high = self._log_std_bounds
+            raw = np.tanh(x @ self._log_std_w + self._log_std_b)
+            std = np.exp(low + 0.5 * (high - low) * (raw + 1.0))
+            pre_squash += std * rng.standard_normal(pre_squash.shape, dtype=np.float32)
+        return np.tanh(pre_squash)

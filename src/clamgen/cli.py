@@ -1,0 +1,145 @@
+"""The `clamgen` command line: one subcommand per job (`clamgen --help` lists them)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tyro
+
+from clamgen.envs import ENV_IDS
+
+DESCRIPTION = "CLAMGen: closed-loop UR5 arm motion generation via multi-view vision-based RL."
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """Render the scene from every camera and roll out the IK-interpolation policy."""
+
+    env_id: str = ENV_IDS[1]
+    """Environment to roll out in (`CLAMGen/Reach-v0` or `CLAMGen/ReachObstacles-v0`)."""
+    num_episodes: int = 5
+    """Episodes to roll out."""
+    seed: int = 0
+    """Seed of the first episode (episode i uses seed + i)."""
+    image_size: int = 256
+    """Side in pixels of each camera view in the saved picture."""
+    out_dir: Path = Path("runs/demo")
+    """Where the picture (`views.png`) and the rollout summary (`demo.json`) go."""
+
+
+def demo(config: DemoConfig) -> dict:
+    """Roll out the scripted IK-interpolation policy and save a picture of all camera views."""
+    import gymnasium as gym
+    import imageio.v3 as iio
+
+    from clamgen.baselines import IKInterpolationPolicy
+    from clamgen.sim import constants as C
+
+    if config.env_id not in ENV_IDS:
+        raise SystemExit(f"unknown env_id {config.env_id!r}; choose one of {ENV_IDS}")
+    if config.num_episodes < 1:
+        raise SystemExit("num_episodes must be >= 1")
+    config.out_dir.mkdir(parents=True, exist_ok=True)
+    env = gym.make(
+        config.env_id,
+        num_views=C.NUM_CAMERAS,
+        image_size=config.image_size,
+        obs_mode="both",
+        render_mode="rgb_array",
+    )
+    policy = IKInterpolationPolicy()
+    episodes = []
+    picture = None
+    for i in range(config.num_episodes):
+        obs, _ = env.reset(seed=config.seed + i)
+        if picture is None:
+            picture = _views_picture(obs["images"], env.render())
+        policy.reset(env)
+        tip_path_m, collided, steps, start = 0.0, False, 0, time.perf_counter()
+        done = False
+        while not done:
+            previous_tip = obs["achieved_goal"]
+            obs, _, terminated, truncated, info = env.step(policy.act(obs))
+            tip_path_m += float(np.linalg.norm(obs["achieved_goal"] - previous_tip))
+            collided |= info["collision"]
+            steps += 1
+            done = terminated or truncated
+        episode = {
+            "seed": config.seed + i,
+            "success": bool(info["is_success"] and not collided),
+            "reached": bool(info["is_success"]),
+            "collided": bool(collided),
+            "steps": steps,
+            "tip_path_m": round(tip_path_m, 4),
+            "seconds": round(time.perf_counter() - start, 3),
+        }
+        episodes.append(episode)
+        print(
+            f"episode {i}: {'success' if episode['success'] else 'failure'} in {steps} steps, "
+            f"tip path {tip_path_m:.3f} m, collision: {collided}"
+        )
+    env.close()
+    picture_path = config.out_dir / "views.png"
+    iio.imwrite(picture_path, picture)
+    summary = {
+        "env_id": config.env_id,
+        "policy": "ik_interpolation",
+        "success_rate": float(np.mean([e["success"] for e in episodes])),
+        "episodes": episodes,
+        "picture": str(picture_path),
+    }
+    (config.out_dir / "demo.json").write_text(json.dumps(summary, indent=2))
+    print(f"success rate {summary['success_rate']:.2f} over {len(episodes)} episodes")
+    print(f"camera views (RGB above depth) and the outside view: {picture_path}")
+    return summary
+
+
+def _views_picture(images: np.ndarray, overview: np.ndarray) -> np.ndarray:
+    """One RGB picture: the views' RGB in a row, their depth below, the outside view beside."""
+    rgb = np.concatenate(list(images[:, :3].transpose(0, 2, 3, 1)), axis=1)
+    depth = np.concatenate(list(images[:, 3]), axis=1)
+    grid = np.concatenate([rgb, np.repeat(depth[..., None], 3, axis=-1)], axis=0)
+    # Resize the outside view to the grid's height by nearest-neighbour sampling.
+    rows = np.linspace(0, overview.shape[0] - 1, grid.shape[0]).astype(int)
+    width = round(overview.shape[1] * grid.shape[0] / overview.shape[0])
+    cols = np.linspace(0, overview.shape[1] - 1, width).astype(int)
+    return np.concatenate([overview[rows][:, cols], grid], axis=1)
+
+
+# Subcommand name -> (config dataclass, handler). Each handler takes its config.
+COMMANDS: dict[str, tuple[type, Callable]] = {
+    "demo": (DemoConfig, demo),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: clamgen COMMAND [OPTIONS]", "", DESCRIPTION, "", "commands:"]
+    for name, (_, handler) in COMMANDS.items():
+        lines.append(f"  {name:<10} {(handler.__doc__ or '').splitlines()[0]}")
+    lines += ["", "Run `clamgen COMMAND --help` for the options of a command."]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the `clamgen` console command."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(_usage(), file=sys.stderr)
+        raise SystemExit(f"\nunknown command {name!r}")
+    config_type, handler = COMMANDS[name]
+    config = tyro.cli(config_type, args=rest, prog=f"clamgen {name}")
+    handler(config)
+
+
+if __name__ == "__main__":
+    main()

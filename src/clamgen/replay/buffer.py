@@ -1,0 +1,260 @@
+"""Episode replay buffer with hindsight relabelling at sample time.
+
+Stores whole episodes in preallocated numpy arrays, one array per observation key (so image keys
+can be uint8), each observation once: an episode of T steps occupies T + 1 consecutive slots and
+``next_obs`` of slot ``i`` is slot ``i + 1``. Goals are relabelled with HER when a batch is
+sampled, and the paper's reversible HER (section "Reversed Vision-Based Hindsight Experience
+Replay") adds its forward and time-reversed episodes when an episode is inserted. The buffer
+never holds an env: rewards come from the ``compute_reward`` callable it is given.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from gymnasium import spaces
+
+from clamgen.replay.episode import (
+    ACHIEVED_GOAL,
+    DESIRED_GOAL,
+    Batch,
+    Episode,
+    RewardFn,
+    TerminatedFn,
+    sparse_terminated,
+)
+from clamgen.replay.her import HerStrategy, reversible_her, reward_and_done, sample_goal_indices
+
+ObsSpec = Mapping[str, tuple[tuple[int, ...], np.dtype]]
+"""Shape (without the batch dim) and dtype of each stored observation key."""
+
+# Per-slot bookkeeping besides observations and the action: collision flag (bool), index of the
+# episode's first and last slot (2 x int64), and whether the slot starts a transition (bool).
+_BOOKKEEPING_BYTES_PER_SLOT = 1 + 8 + 8 + 1
+_NO_EPISODE = -1
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """Replay buffer settings."""
+
+    capacity: int = 1_000_000
+    """Observation slots. An episode of T steps takes T + 1 of them and yields T transitions."""
+    her_strategy: HerStrategy = "future"
+    """Where relabelled goals come from (see :data:`clamgen.replay.her.HerStrategy`)."""
+    her_ratio: float = 0.8
+    """Probability that a sampled transition gets a relabelled goal (k = 4 in HER terms)."""
+    reversible_her: bool = True
+    """Add the paper's reversible-HER forward and reversed episodes of every failed episode."""
+    max_memory_fraction: float = 0.8
+    """Refuse a capacity whose arrays need more than this fraction of the available memory."""
+
+    def __post_init__(self) -> None:
+        if self.capacity < 2:
+            raise ValueError("capacity must hold at least one step (two observations)")
+        if not 0.0 <= self.her_ratio <= 1.0:
+            raise ValueError(f"her_ratio must be in [0, 1], got {self.her_ratio}")
+
+
+def obs_spec_from_space(
+    observation_space: spaces.Dict,
+) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """The :data:`ObsSpec` of a Gymnasium Dict observation space of Box entries."""
+    return {
+        key: (tuple(space.shape), np.dtype(space.dtype))
+        for key, space in observation_space.spaces.items()
+    }
+
+
+def nbytes_required(config: ReplayConfig, obs_spec: ObsSpec, action_dim: int) -> int:
+    """Bytes the buffer's arrays take for ``config.capacity`` slots."""
+    obs_bytes = sum(
+        math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in obs_spec.values()
+    )
+    action_bytes = action_dim * np.dtype(np.float32).itemsize
+    return config.capacity * (obs_bytes + action_bytes + _BOOKKEEPING_BYTES_PER_SLOT)
+
+
+def available_memory_bytes() -> int:
+    """Memory the system can give without swapping: MemAvailable from /proc/meminfo, else the
+    free physical pages reported by ``os.sysconf``."""
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+class ReplayBuffer:
+    """Ring buffer of whole episodes; uniform sampling over stored transitions.
+
+    When a new episode does not fit before the end of the arrays, writing wraps to slot 0, and
+    every old episode it overlaps is dropped whole, so a stored transition always has its next
+    observation and its episode's future achieved goals.
+    """
+
+    def __init__(
+        self,
+        config: ReplayConfig,
+        obs_spec: ObsSpec,
+        action_dim: int,
+        compute_reward: RewardFn,
+        compute_terminated: TerminatedFn | None = None,
+    ) -> None:
+        """Allocate the arrays.
+
+        Args:
+            config: buffer settings.
+            obs_spec: shape and dtype per observation key; must include ``achieved_goal`` and
+                ``desired_goal``.
+            action_dim: action size A.
+            compute_reward: the env's vectorised ``env.unwrapped.compute_reward``.
+            compute_terminated: the env's vectorised terminal check; None derives it from a
+                sparse reward that is 0 exactly on success.
+
+        Raises:
+            ValueError: when the arrays would not fit into ``config.max_memory_fraction`` of the
+                available memory.
+        """
+        for key in (ACHIEVED_GOAL, DESIRED_GOAL):
+            if key not in obs_spec:
+                raise ValueError(f"obs_spec lacks the goal key {key!r}")
+        required = nbytes_required(config, obs_spec, action_dim)
+        available = available_memory_bytes()
+        if required > config.max_memory_fraction * available:
+            raise ValueError(
+                f"replay capacity {config.capacity} needs {required / 2**30:.2f} GiB, more than "
+                f"{config.max_memory_fraction:.0%} of the {available / 2**30:.2f} GiB available; "
+                "lower ReplayConfig.capacity"
+            )
+        self.config = config
+        self.compute_reward = compute_reward
+        self.compute_terminated = compute_terminated or sparse_terminated(compute_reward)
+        capacity = config.capacity
+        self._obs = {
+            key: np.zeros((capacity, *shape), dtype) for key, (shape, dtype) in obs_spec.items()
+        }
+        self._action = np.zeros((capacity, action_dim), np.float32)
+        self._collision = np.zeros(capacity, bool)
+        self._first = np.full(capacity, _NO_EPISODE, np.int64)
+        self._last = np.full(capacity, _NO_EPISODE, np.int64)
+        self._starts_transition = np.zeros(capacity, bool)
+        self._cursor = 0  # slot the next episode is written to
+        self._high_water = 0  # slots [0, high_water) have been written at least once
+        self._num_transitions = 0
+        self._num_episodes = 0
+
+    def __len__(self) -> int:
+        """Number of stored transitions."""
+        return self._num_transitions
+
+    @property
+    def num_episodes(self) -> int:
+        """Number of stored episodes (reversible-HER ones included)."""
+        return self._num_episodes
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the buffer's arrays."""
+        arrays = [*self._obs.values(), self._action, self._collision, self._first, self._last]
+        return sum(a.nbytes for a in arrays) + self._starts_transition.nbytes
+
+    def add_episode(self, episode: Episode) -> int:
+        """Store an episode, plus its reversible-HER episodes when enabled.
+
+        The reversible-HER episodes are stored as episodes of their own: their observations
+        carry a new ``desired_goal`` (and, for image keys, must show the target there).
+
+        Returns:
+            Number of episodes stored (1, or 3 for a failed episode with reversible HER).
+        """
+        extra = ()
+        if self.config.reversible_her:
+            extra = reversible_her(episode, self.compute_reward, self.compute_terminated)
+        for stored in (episode, *extra):
+            self._write(stored)
+        return 1 + len(extra)
+
+    def _write(self, episode: Episode) -> None:
+        num_slots = episode.num_steps + 1
+        if num_slots > self.config.capacity:
+            raise ValueError(
+                f"an episode of {episode.num_steps} steps needs {num_slots} slots, more than "
+                f"the capacity {self.config.capacity}"
+            )
+        if self._cursor + num_slots > self.config.capacity:
+            self._cursor = 0
+        start, stop = self._cursor, self._cursor + num_slots
+        self._drop_overlapping(start, stop)
+        for key, array in self._obs.items():
+            array[start:stop] = episode.obs[key]
+        self._action[start : stop - 1] = episode.actions
+        self._collision[start : stop - 1] = episode.collisions
+        self._first[start:stop] = start
+        self._last[start:stop] = stop - 1
+        self._starts_transition[start : stop - 1] = True
+        self._cursor = stop
+        self._high_water = max(self._high_water, stop)
+        self._num_transitions += episode.num_steps
+        self._num_episodes += 1
+
+    def _drop_overlapping(self, start: int, stop: int) -> None:
+        """Forget every stored episode with a slot in [start, stop)."""
+        firsts = self._first[start:stop]
+        for first in np.unique(firsts[firsts != _NO_EPISODE]):
+            last = self._last[first]
+            self._first[first : last + 1] = _NO_EPISODE
+            self._last[first : last + 1] = _NO_EPISODE
+            self._starts_transition[first : last + 1] = False
+            self._num_transitions -= int(last - first)
+            self._num_episodes -= 1
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
+        """Sample transitions uniformly, relabelling goals with probability ``her_ratio``.
+
+        Returns:
+            A :class:`Batch` of ``batch_size`` transitions; rewards and ``done`` recomputed for
+            every transition's (possibly relabelled) goal.
+        """
+        if self._num_transitions == 0:
+            raise ValueError("cannot sample from an empty replay buffer")
+        slots = self._sample_transition_slots(batch_size, rng)
+        obs = {key: array[slots] for key, array in self._obs.items()}
+        next_obs = {key: array[slots + 1] for key, array in self._obs.items()}
+        relabel = rng.random(batch_size) < self.config.her_ratio
+        goal_slots = sample_goal_indices(
+            self.config.her_strategy,
+            slots[relabel],
+            self._first[slots[relabel]],
+            self._last[slots[relabel]],
+            rng,
+        )
+        goals = self._obs[ACHIEVED_GOAL][goal_slots]
+        obs[DESIRED_GOAL][relabel] = goals
+        next_obs[DESIRED_GOAL][relabel] = goals
+        reward, done = reward_and_done(
+            next_obs[ACHIEVED_GOAL],
+            next_obs[DESIRED_GOAL],
+            self._collision[slots],
+            self.compute_reward,
+            self.compute_terminated,
+        )
+        return Batch(
+            obs=obs, action=self._action[slots], reward=reward, next_obs=next_obs, done=done
+        )
+
+    def _sample_transition_slots(self, batch_size: int, rng: np.random.Generator) -> np.ndarray:
+        """Uniform over stored transitions by rejection: all written slots but each episode's
+        last one and the few freed by a wrap start a transition, so one round usually does."""
+        chosen = np.empty(0, np.int64)
+        while len(chosen) < batch_size:
+            draw = rng.integers(0, self._high_water, size=2 * (batch_size - len(chosen)) + 8)
+            chosen = np.concatenate([chosen, draw[self._starts_transition[draw]]])
+        return chosen[:batch_size]

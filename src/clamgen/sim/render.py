@@ -1,0 +1,180 @@
+"""Multi-camera RGB + metric depth rendering in one OpenGL context.
+
+All views are drawn side by side into one offscreen framebuffer and read back with a single
+`mjr_readPixels`, which returns colour and depth together: one render pass per camera, one read
+for all of them. Shadows, reflections, skybox and fog are off: they cost about 10x on a software
+(Mesa) GL and carry no information for the policy.
+"""
+
+from __future__ import annotations
+
+import os
+
+import mujoco
+import numpy as np
+
+from clamgen.sim import constants as C
+
+_GL_HINT = (
+    "MuJoCo could not create an OpenGL context for offscreen rendering (MUJOCO_GL={backend!r}). "
+    "Headless machines need EGL or OSMesa: set MUJOCO_GL=egl (libEGL, e.g. Debian's "
+    "libegl1 + libgl1-mesa-dri) or MUJOCO_GL=osmesa (libosmesa6). Image observations need "
+    "rendering; joint-only environments (num_views=0) do not."
+)
+
+
+def make_gl_context(width: int, height: int) -> mujoco.GLContext:
+    """An offscreen GL context, with a hint on how to get one when it fails."""
+    backend = os.environ.get("MUJOCO_GL", "")
+    try:
+        context = mujoco.GLContext(width, height)
+    except Exception as error:  # MuJoCo raises various error types per backend
+        raise RuntimeError(_GL_HINT.format(backend=backend)) from error
+    return context
+
+
+def depth_to_uint8(depth_m: np.ndarray, depth_range_m=C.DEPTH_RANGE_M) -> np.ndarray:
+    """Metric depth (any shape, metres) to uint8 over `depth_range_m`, linear, clipped."""
+    near, far = depth_range_m
+    scaled = (np.asarray(depth_m, np.float32) - near) * (255.0 / (far - near))
+    return np.clip(scaled + 0.5, 0, 255).astype(np.uint8)
+
+
+def uint8_to_depth(depth_u8: np.ndarray, depth_range_m=C.DEPTH_RANGE_M) -> np.ndarray:
+    """Inverse of `depth_to_uint8` (up to quantisation of (far - near) / 255 metres)."""
+    near, far = depth_range_m
+    return near + depth_u8.astype(np.float32) * ((far - near) / 255.0)
+
+
+class MultiViewRenderer:
+    """Renders RGB and metric depth from several cameras of one model.
+
+    Args:
+        model: the compiled model (its offscreen buffer is enlarged if needed).
+        camera_ids: MuJoCo camera ids, one per view, in output order.
+        height, width: image size in pixels (any size the GL implementation allows).
+
+    The GL context is created on first use, in the calling thread or process, so that an
+    environment can be built in one process and stepped in another (vector env workers).
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, camera_ids, height: int = 128, width: int = 128
+    ) -> None:
+        if height <= 0 or width <= 0:
+            raise ValueError(f"image size must be positive, got {height}x{width}")
+        self.model = model
+        self.camera_ids = [int(c) for c in camera_ids]
+        for cam in self.camera_ids:
+            if not 0 <= cam < model.ncam:
+                raise ValueError(f"camera id {cam} out of range [0, {model.ncam})")
+        self.height, self.width = height, width
+        self.num_views = len(self.camera_ids)
+        self._context: mujoco.GLContext | None = None
+        self._mjr: mujoco.MjrContext | None = None
+        self._scene = mujoco.MjvScene(model, maxgeom=200)
+        self._option = mujoco.MjvOption()
+        # No sites, joints or frames in the images: only what a real camera would see.
+        self._option.sitegroup[:] = 0
+        for flag in (
+            mujoco.mjtRndFlag.mjRND_SHADOW,
+            mujoco.mjtRndFlag.mjRND_REFLECTION,
+            mujoco.mjtRndFlag.mjRND_SKYBOX,
+            mujoco.mjtRndFlag.mjRND_FOG,
+            mujoco.mjtRndFlag.mjRND_HAZE,
+        ):
+            self._scene.flags[flag] = False
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        strip_width = width * max(1, self.num_views)
+        self._rgb = np.empty((height, strip_width, 3), np.uint8)
+        self._depth = np.empty((height, strip_width), np.float32)
+        self._full = mujoco.MjrRect(0, 0, strip_width, height)
+        self._rects = [mujoco.MjrRect(i * width, 0, width, height) for i in range(self.num_views)]
+        near = model.vis.map.znear * model.stat.extent
+        far = model.vis.map.zfar * model.stat.extent
+        # Reversed-Z depth buffer (mjDEPTH_ZEROFAR): window depth z = near * (far - d) /
+        # (d * (far - near)), so metric depth d = near * far / (z * (far - near) + near).
+        self._near, self._far = near, far
+
+    def _ensure_context(self) -> None:
+        if self._mjr is not None:
+            return
+        strip_width = self.width * max(1, self.num_views)
+        vis = self.model.vis.global_
+        vis.offwidth = max(vis.offwidth, strip_width)
+        vis.offheight = max(vis.offheight, self.height)
+        self._context = make_gl_context(strip_width, self.height)
+        self._context.make_current()
+        self._mjr = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._mjr)
+        self._mjr.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+
+    def render(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """Draw every view of `data` (its frames must be current, e.g. after mj_kinematics).
+
+        Returns:
+            rgb: (V, H, W, 3) uint8.
+            depth_m: (V, H, W) float32, metric distance along each camera's optical axis.
+        """
+        self._ensure_context()
+        self._context.make_current()
+        for rect, cam in zip(self._rects, self.camera_ids, strict=True):
+            self._camera.fixedcamid = cam
+            mujoco.mjv_updateScene(
+                self.model,
+                data,
+                self._option,
+                None,
+                self._camera,
+                mujoco.mjtCatBit.mjCAT_ALL,
+                self._scene,
+            )
+            mujoco.mjr_render(rect, self._scene, self._mjr)
+        mujoco.mjr_readPixels(self._rgb, self._depth, self._full, self._mjr)
+        near, far = self._near, self._far
+        depth = near * far / (self._depth * (far - near) + near)
+        # OpenGL rows start at the bottom; split the strip into views, top row first.
+        rgb = self._rgb[::-1].reshape(self.height, self.num_views, self.width, 3)
+        depth = depth[::-1].reshape(self.height, self.num_views, self.width)
+        return (
+            np.ascontiguousarray(rgb.transpose(1, 0, 2, 3)),
+            np.ascontiguousarray(depth.transpose(1, 0, 2)),
+        )
+
+    def close(self) -> None:
+        """Free the GL resources (safe to call twice)."""
+        if self._mjr is not None:
+            self._context.make_current()
+            self._mjr.free()
+            self._mjr = None
+        if self._context is not None:
+            self._context.free()
+            self._context = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: GL may already be gone
+            pass
+
+
+def camera_intrinsics(model: mujoco.MjModel, camera_id: int, height: int, width: int):
+    """Pinhole intrinsics (fx, fy, cx, cy) in pixels of a MuJoCo camera for an image size."""
+    fovy = np.deg2rad(model.cam_fovy[camera_id])
+    fy = 0.5 * height / np.tan(0.5 * fovy)
+    return fy, fy, 0.5 * width, 0.5 * height
+
+
+def project_points(
+    model: mujoco.MjModel, data: mujoco.MjData, camera_id: int, points_m, height: int, width: int
+) -> np.ndarray:
+    """Pixel coordinates (..., 2) as (column, row), row 0 at the top, of world points (..., 3)."""
+    points = np.asarray(points_m, np.float64)
+    rotation = data.cam_xmat[camera_id].reshape(3, 3)  # columns: camera x, y, z in world
+    local = (points - data.cam_xpos[camera_id]) @ rotation
+    fx, fy, cx, cy = camera_intrinsics(model, camera_id, height, width)
+    depth = -local[..., 2]  # the camera looks along its -z axis
+    col = cx + fx * local[..., 0] / depth
+    row = cy - fy * local[..., 1] / depth
+    return np.stack([col, row], axis=-1)
