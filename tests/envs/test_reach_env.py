@@ -258,7 +258,8 @@ def _make_image_env():
 
 
 def test_async_vector_env_renders_in_every_worker():
-    envs = gym.vector.AsyncVectorEnv([_make_image_env, _make_image_env])
+    # "spawn": a process forked after its parent made a GL context inherits a broken EGL state.
+    envs = gym.vector.AsyncVectorEnv([_make_image_env, _make_image_env], context="spawn")
     obs, _ = envs.reset(seed=[0, 1])
     assert obs["images"].shape == (2, 2, 4, SMALL, SMALL)
     assert not np.array_equal(obs["images"][0], obs["images"][1])
@@ -268,3 +269,12 @@ def test_async_vector_env_renders_in_every_worker():
     envs.call("set_collision_penalty", 0.05)
     assert envs.get_attr("collision_penalty") == (0.05, 0.05)
     envs.close()
+
+
+def test_forked_worker_after_gl_fails_fast_with_a_hint():
+    env = make(ENV_IDS[0], num_views=1, obs_mode="both", image_size=SMALL)
+    env.reset(seed=0)  # this process now has a GL context
+    envs = gym.vector.AsyncVectorEnv([_make_image_env], context="fork")
+    with pytest.raises(RuntimeError, match="spawn"):
+        envs.reset(seed=0)
+    envs.close(terminate=True)

@@ -260,7 +260,7 @@ class ReachEnv(gym.Env):
             return None
         if self._overview_renderer is None:
             self._overview_renderer = MultiViewRenderer(
-                self.scene.model, [self.scene.overview_camera_id], 480, 640
+                self.scene.model, [self.scene.overview_camera_id], 480, 640, quality="pretty"
             )
         return self._overview_renderer.render(self.scene.data)[0][0]
 

@@ -20,7 +20,7 @@ from clamgen.robot import ur5
 from clamgen.sim import constants as C
 
 
-def _dh_static(i: int) -> np.ndarray:
+def dh_static(i: int) -> np.ndarray:
     """Tz(d_i) Tx(a_i) Rx(alpha_i) for joint i (0-based): the part of DH link i after the joint."""
     ca, sa = np.cos(ur5.DH_ALPHA[i]), np.sin(ur5.DH_ALPHA[i])
     return np.array(
@@ -69,7 +69,7 @@ def _camera_xml(name: str, pos, target, fovy: float) -> str:
 # a2, displaced by the shoulder offset along the joint axis.
 _SO = ur5.SHOULDER_OFFSET_M
 _EO = _SO + ur5.ELBOW_OFFSET_M  # height of the forearm along the parallel joint axes
-_LINK_GEOMS: dict[int, list[tuple[str, tuple[float, ...], float]]] = {
+LINK_CAPSULES: dict[int, list[tuple[str, tuple[float, ...], float]]] = {
     1: [("shoulder", (0, 0, 0.02, 0, 0, ur5.DH_D[0]), ur5.SHOULDER_RADIUS_M)],
     2: [
         ("shoulder_joint", (0, 0, -0.02, 0, 0, _SO), ur5.SHOULDER_RADIUS_M),
@@ -90,7 +90,7 @@ def _robot_xml() -> str:
     closing = []
     parts = []
     for i in range(1, ur5.NUM_JOINTS + 1):
-        static = np.eye(4) if i == 1 else _dh_static(i - 2)
+        static = np.eye(4) if i == 1 else dh_static(i - 2)
         lo, hi = ur5.JOINT_LIMITS[i - 1]
         parts.append(f'<body name="link{i}" {_pose_attrs(static)}>')
         parts.append(
@@ -99,7 +99,7 @@ def _robot_xml() -> str:
         )
         # The shoulder column stands on the base: let it touch obstacles but not the table.
         contype = C.OBSTACLE_BIT if i == 1 else C.OBSTACLE_BIT | C.TABLE_BIT
-        for name, fromto, radius in _LINK_GEOMS[i]:
+        for name, fromto, radius in LINK_CAPSULES[i]:
             rgba = _JOINT_RGBA if "joint" in name or "wrist" in name or "elbow" in name else None
             parts.append(
                 f'<geom name="{name}" type="capsule" fromto="{_fmt(fromto)}" size="{radius}" '
