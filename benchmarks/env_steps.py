@@ -20,11 +20,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import best_rate, write_csv  # noqa: E402
-from pybullet_scene import PyBulletScene  # noqa: E402
+from common import best_rate, write_csv
+from pybullet_scene import PyBulletScene
 
-import clamgen  # noqa: E402, F401
-from clamgen.envs.reach_env import (  # noqa: E402
+import clamgen  # noqa: F401
+from clamgen.envs.reach_env import (
     COLLISION_CHECK_RESOLUTION_RAD,
     CONTROL_DT_S,
     MAX_JOINT_DELTA_RAD,
@@ -32,8 +32,8 @@ from clamgen.envs.reach_env import (  # noqa: E402
     SUCCESS_DISTANCE_M,
     ReachEnv,
 )
-from clamgen.robot import ur5  # noqa: E402
-from clamgen.tasks import reach  # noqa: E402
+from clamgen.robot import ur5
+from clamgen.tasks import reach
 
 
 class PyBulletReach:

@@ -16,13 +16,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import best_rate, write_csv  # noqa: E402
-from pybullet_scene import PyBulletScene  # noqa: E402
+from common import best_rate, write_csv
+from pybullet_scene import PyBulletScene
 
-import clamgen  # noqa: E402, F401
-from clamgen.envs.reach_env import ReachEnv  # noqa: E402
-from clamgen.sim.render import MultiViewRenderer  # noqa: E402
-from clamgen.sim.state import images_from_render  # noqa: E402
+import clamgen  # noqa: F401
+from clamgen.envs.reach_env import ReachEnv
+from clamgen.sim.render import MultiViewRenderer
+from clamgen.sim.state import images_from_render
 
 
 def main() -> None:
