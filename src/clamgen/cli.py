@@ -112,9 +112,45 @@ def _views_picture(images: np.ndarray, overview: np.ndarray) -> np.ndarray:
     return np.concatenate([overview[rows][:, cols], grid], axis=1)
 
 
-# Subcommand name -> (config dataclass, handler). Each handler takes its config.
-COMMANDS: dict[str, tuple[type, Callable]] = {
-    "demo": (DemoConfig, demo),
+def train(config) -> dict:
+    """Train the joint-space SAC base policy with HER and reversible HER (stage 1)."""
+    from clamgen.experiments.train import train as run_training
+
+    summary = run_training(config)
+    print(json.dumps(summary, indent=2))
+    print(f"run directory: {config.run_dir} (policy: {config.run_dir / 'policy.pt'})")
+    return summary
+
+
+def _train_config(argv: list[str]):
+    """A TrainConfig from `--preset NAME` (default "base") plus command-line overrides."""
+    from clamgen.experiments.config import TrainConfig, load_preset
+
+    preset = "base"
+    if "--preset" in argv:
+        index = argv.index("--preset")
+        if index + 1 >= len(argv):
+            raise SystemExit("--preset needs a name or a .toml path")
+        preset = argv[index + 1]
+        argv = argv[:index] + argv[index + 2 :]
+    try:
+        default = load_preset(preset)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(str(error)) from error
+    return tyro.cli(
+        TrainConfig,
+        default=default,
+        args=argv,
+        prog="clamgen train",
+        description=f"{train.__doc__} Options start from --preset {preset!r}; "
+        "presets live in clamgen/presets/ (or pass a .toml path).",
+    )
+
+
+# Subcommand name -> (config builder from argv, handler). Each handler takes its config.
+COMMANDS: dict[str, tuple[Callable, Callable]] = {
+    "demo": (lambda argv: tyro.cli(DemoConfig, args=argv, prog="clamgen demo"), demo),
+    "train": (_train_config, train),
 }
 
 
@@ -136,9 +172,8 @@ def main(argv: list[str] | None = None) -> None:
     if name not in COMMANDS:
         print(_usage(), file=sys.stderr)
         raise SystemExit(f"\nunknown command {name!r}")
-    config_type, handler = COMMANDS[name]
-    config = tyro.cli(config_type, args=rest, prog=f"clamgen {name}")
-    handler(config)
+    build_config, handler = COMMANDS[name]
+    handler(build_config(rest))
 
 
 if __name__ == "__main__":

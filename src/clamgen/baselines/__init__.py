@@ -1,5 +1,6 @@
 """Classical baselines, each a `clamgen.policy.Policy`."""
 
 from clamgen.baselines.ik_interpolation import IKInterpolationPolicy
+from clamgen.baselines.rrt import RRTConfig, RRTPolicy
 
-__all__ = ["IKInterpolationPolicy"]
+__all__ = ["IKInterpolationPolicy", "RRTConfig", "RRTPolicy"]

@@ -69,6 +69,7 @@ class EnvState:
     sim: SimState
     target_velocity_mps: np.ndarray
     num_steps: int
+    task: reach.Task | None = None
 
 
 class ReachEnv(gym.Env):
@@ -272,13 +273,17 @@ class ReachEnv(gym.Env):
     # ------------------------------------------------- state for hindsight relabelling
     def get_state(self) -> EnvState:
         """A copy of the full state (simulator + target motion + step count)."""
-        return EnvState(SimState.capture(self.scene), self._target_velocity.copy(), self._num_steps)
+        return EnvState(
+            SimState.capture(self.scene), self._target_velocity.copy(), self._num_steps, self._task
+        )
 
     def set_state(self, state: EnvState) -> None:
         """Restore a state from `get_state`; the next `step` continues from it exactly."""
         state.sim.apply(self.scene)
         self._target_velocity = np.array(state.target_velocity_mps, dtype=np.float64)
         self._num_steps = state.num_steps
+        if state.task is not None:
+            self._task = state.task
 
     def render_images(
         self,

@@ -216,6 +216,39 @@ class ReplayBuffer:
             self._num_transitions -= int(last - first)
             self._num_episodes -= 1
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The stored data as plain numpy arrays (for `numpy.savez`; no pickling needed)."""
+        state = {f"obs/{key}": array[: self._high_water] for key, array in self._obs.items()}
+        state |= {
+            "action": self._action[: self._high_water],
+            "collision": self._collision[: self._high_water],
+            "first": self._first[: self._high_water],
+            "last": self._last[: self._high_water],
+            "starts_transition": self._starts_transition[: self._high_water],
+            "counters": np.array(
+                [self._cursor, self._high_water, self._num_transitions, self._num_episodes]
+            ),
+        }
+        return state
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restore from :meth:`state_dict` into this buffer's (equally configured) arrays."""
+        cursor, high_water, num_transitions, num_episodes = (int(v) for v in state["counters"])
+        if high_water > self.config.capacity:
+            raise ValueError(
+                f"saved buffer holds {high_water} slots, more than the capacity "
+                f"{self.config.capacity}"
+            )
+        for key, array in self._obs.items():
+            array[:high_water] = state[f"obs/{key}"]
+        self._action[:high_water] = state["action"]
+        self._collision[:high_water] = state["collision"]
+        self._first[:high_water] = state["first"]
+        self._last[:high_water] = state["last"]
+        self._starts_transition[:high_water] = state["starts_transition"]
+        self._cursor, self._high_water = cursor, high_water
+        self._num_transitions, self._num_episodes = num_transitions, num_episodes
+
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         """Sample transitions uniformly, relabelling goals with probability ``her_ratio``.
 

@@ -132,6 +132,29 @@ class EpisodeRecorder:
         self._collisions.append(bool(info.get("collision", False)))
         self._successes.append(bool(info.get("is_success", False)))
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The partial episode as arrays (for checkpoints): obs/<key> (t + 1, ...), actions,
+        executed_actions, collisions, successes (t, ...)."""
+        arrays = {f"obs/{k}": np.stack(v) for k, v in self._obs.items()}
+        arrays["actions"] = np.array(self._actions, np.float32)
+        arrays["executed_actions"] = np.array(self._executed, np.float32)
+        arrays["collisions"] = np.array(self._collisions, bool)
+        arrays["successes"] = np.array(self._successes, bool)
+        return arrays
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> EpisodeRecorder:
+        """Rebuild a recorder from :meth:`arrays`."""
+        recorder = cls({k[4:]: v[0] for k, v in arrays.items() if k.startswith("obs/")})
+        for key, value in arrays.items():
+            if key.startswith("obs/"):
+                recorder._obs[key[4:]] = list(value)
+        recorder._actions = list(arrays["actions"])
+        recorder._executed = list(arrays["executed_actions"])
+        recorder._collisions = [bool(c) for c in arrays["collisions"]]
+        recorder._successes = [bool(c) for c in arrays["successes"]]
+        return recorder
+
     def episode(self) -> Episode:
         """The recorded episode as arrays."""
         return Episode(

@@ -1,0 +1,305 @@
+"""Multi-view image encoder of stage 2 (paper, "Learned 3D fusion for Obstacle-Avoidance").
+
+Each camera view goes through 4 convolutional layers (ReLU); the flattened features of all views
+are concatenated and passed through two dense layers to the visual encoding. Joint angles and
+goal go through one dense layer + ReLU (:class:`LowDimEncoder`); :func:`fuse` concatenates the
+two encodings for the controller (actor / critic) layers.
+
+As in CURL and DrQ (Srinivas et al., 2020; Yarats et al., 2021) the visual encoding ends in
+LayerNorm + tanh (``EncoderConfig.output_layer_norm``): it bounds the features that the critic,
+the actor and the bilinear contrastive heads see, which those papers found to stabilise learning
+from pixels. The paper only says "two dense layers", so this is our choice.
+
+View dropout (paper, after Akinola et al., 2020): a ``view_mask`` (B, V) bool, True = kept,
+zeroes the conv features of dropped views before the dense layers. By default the mask itself is
+appended to the merged features (``view_mask_indicator``), so the first dense layer can tell a
+dropped view from a dark one and learn a bias per dropout pattern; the kept views are not
+rescaled (``rescale_kept_views``), so every view's features have the same scale in training and
+at evaluation, where all views are present. :func:`view_dropout_mask` draws the masks.
+
+The first dense layer is stored per view, ``W = [W_1 ... W_V]`` with ``W @ concat(f_1..f_V) =
+sum_v W_v f_v``, which is exactly a dense layer on the concatenation but also gives, at almost no
+cost, the encoding of each view alone (:meth:`MultiViewEncoder.single_view_encodings`, the
+across-view contrastive term's embeddings).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = [
+    "EncoderConfig",
+    "LowDimEncoder",
+    "MultiViewEncoder",
+    "conv_output_size",
+    "fuse",
+    "to_unit_float",
+    "view_dropout_mask",
+]
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Multi-view RGBD encoder settings. Defaults are paper-like (CURL's 84 px, stride 2 then 1)."""
+
+    image_size: int = 84
+    """Side H = W in pixels of the (square, already cropped) images the encoder sees."""
+    num_views: int = 3
+    """Number V of camera views in each observation."""
+    in_channels: int = 4
+    """Channels per view: RGB + depth."""
+    num_channels: int = 32
+    """Output channels of every conv layer."""
+    strides: tuple[int, ...] = (2, 1, 1, 1)
+    """Stride of each conv layer; one entry per layer (the paper uses 4). (2, 2, 1, 1) has about
+    1/8 of the conv cost of (2, 1, 1, 1) at 84 px and suits a CPU."""
+    kernel_size: int = 3
+    """Square kernel side of every conv layer; no padding."""
+    hidden_dim: int = 256
+    """Width of the first of the two dense layers that merge the views."""
+    feature_dim: int = 50
+    """Size of the visual encoding (CURL's 50)."""
+    share_view_weights: bool = True
+    """One conv stack for all views (True) or one stack per view (False). The first dense layer
+    is always per view: it reads the concatenation of the views' features."""
+    output_layer_norm: bool = True
+    """End the visual encoding with LayerNorm + tanh (CURL / DrQ); otherwise it is linear."""
+    view_mask_indicator: bool = True
+    """Append the view mask (V floats, 1 = kept) to the merged features."""
+    rescale_kept_views: bool = False
+    """Scale the kept views' features by V / (number kept), like inverted dropout."""
+    low_dim_input: int = 9
+    """Size of the low-dimensional input: joint angles (6) + goal (3)."""
+    low_dim_size: int = 64
+    """Size of the low-dimensional (joints + goal) encoding."""
+
+    def __post_init__(self) -> None:
+        if conv_output_size(self.image_size, self.strides, self.kernel_size) < 1:
+            raise ValueError(
+                f"image_size {self.image_size} is too small for strides {self.strides} "
+                f"with kernel {self.kernel_size}"
+            )
+
+    @property
+    def conv_output_side(self) -> int:
+        """Side of each view's last conv feature map, pixels."""
+        return conv_output_size(self.image_size, self.strides, self.kernel_size)
+
+    @property
+    def view_feature_dim(self) -> int:
+        """Size F of one view's flattened conv features."""
+        return self.num_channels * self.conv_output_side**2
+
+
+def conv_output_size(image_size: int, strides: tuple[int, ...], kernel_size: int) -> int:
+    """Side of the feature map after unpadded convs with these strides (<= 0: too small)."""
+    side = image_size
+    for stride in strides:
+        side = (side - kernel_size) // stride + 1
+        if side < 1:
+            return 0
+    return side
+
+
+def _conv_stack(config: EncoderConfig) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    channels = config.in_channels
+    for stride in config.strides:
+        layers += [nn.Conv2d(channels, config.num_channels, config.kernel_size, stride), nn.ReLU()]
+        channels = config.num_channels
+    return nn.Sequential(*layers)
+
+
+def to_unit_float(images: torch.Tensor) -> torch.Tensor:
+    """uint8 images scaled to float32 in [0, 1]; floating images are returned unchanged."""
+    if images.dtype == torch.uint8:
+        return images.to(torch.float32).mul_(1.0 / 255.0)
+    if not images.is_floating_point():
+        raise TypeError(f"images must be uint8 or floating, got {images.dtype}")
+    return images
+
+
+class MultiViewEncoder(nn.Module):
+    """V RGBD views -> visual encoding (B, feature_dim); see the module docstring.
+
+    ``forward(images, view_mask)`` is ``merge(conv_trunk(images), view_mask)``; a training step
+    that also needs the per-view features (contrastive terms) calls the two halves itself, so the
+    convs run once.
+    """
+
+    def __init__(self, config: EncoderConfig) -> None:
+        super().__init__()
+        self.config = config
+        num_trunks = 1 if config.share_view_weights else config.num_views
+        self.trunks = nn.ModuleList(_conv_stack(config) for _ in range(num_trunks))
+        num_views, view_dim, hidden = config.num_views, config.view_feature_dim, config.hidden_dim
+        # nn.Linear's default init for a dense layer on concat(features, mask indicator).
+        fan_in = num_views * view_dim + (num_views if config.view_mask_indicator else 0)
+        bound = 1.0 / math.sqrt(fan_in)
+        self.view_weight = nn.Parameter(
+            torch.empty(num_views, view_dim, hidden).uniform_(-bound, bound)
+        )
+        self.mask_weight: nn.Parameter | None = None
+        if config.view_mask_indicator:
+            self.mask_weight = nn.Parameter(torch.empty(num_views, hidden).uniform_(-bound, bound))
+        self.hidden_bias = nn.Parameter(torch.empty(hidden).uniform_(-bound, bound))
+        self.head = nn.Linear(hidden, config.feature_dim)
+        self.norm = nn.LayerNorm(config.feature_dim) if config.output_layer_norm else None
+
+    def conv_trunk(self, images: torch.Tensor) -> torch.Tensor:
+        """Per-view flattened conv features.
+
+        Args:
+            images: (B, V, C, H, W) uint8 in [0, 255] (scaled by 1/255 here), or floating
+                already in [0, 1]; H = W = ``config.image_size``.
+
+        Returns:
+            (B, V, F) float32, F = ``config.view_feature_dim`` (ReLU outputs).
+        """
+        cfg = self.config
+        view_shape = (cfg.num_views, cfg.in_channels, cfg.image_size, cfg.image_size)
+        if images.dim() != 5 or images.shape[1:] != view_shape:
+            raise ValueError(f"expected images (B, *{view_shape}), got {tuple(images.shape)}")
+        batch, num_views = images.shape[:2]
+        x = to_unit_float(images)
+        if cfg.share_view_weights:
+            # All views in one batch of B * V images through the same convs.
+            features = self.trunks[0](x.flatten(0, 1))
+            return features.reshape(batch, num_views, -1)
+        # One conv stack per view. (A grouped conv does the same in one call, but measured
+        # 1.5x slower on CPU than this loop.)
+        per_view = [trunk(x[:, v]).flatten(1) for v, trunk in enumerate(self.trunks)]
+        return torch.stack(per_view, dim=1)
+
+    def _view_projections(self, view_features: torch.Tensor) -> torch.Tensor:
+        """W_v f_v for each view: (B, V, F) -> (B, V, hidden)."""
+        # unbind (not indexing) so the backward pass stacks the gradients in one allocation.
+        per_view = zip(view_features.unbind(1), self.view_weight.unbind(0), strict=True)
+        return torch.stack([f @ w for f, w in per_view], dim=1)
+
+    def _dense_head(self, pre_activation: torch.Tensor) -> torch.Tensor:
+        encoding = self.head(F.relu(pre_activation))
+        if self.norm is not None:
+            encoding = torch.tanh(self.norm(encoding))
+        return encoding
+
+    def merge(
+        self, view_features: torch.Tensor, view_mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Visual encoding from per-view conv features, with dropped views zeroed.
+
+        Equal to two dense layers on ``concat(mask_v * s * f_v for v, [mask])`` where s is 1 or,
+        with ``rescale_kept_views``, V / (number of kept views).
+
+        Args:
+            view_features: (B, V, F) float32 from :meth:`conv_trunk`.
+            view_mask: (B, V) bool, True = view kept; None keeps every view. Each row must keep
+                at least one view.
+
+        Returns:
+            (B, feature_dim) float32; in (-1, 1) with ``output_layer_norm``.
+        """
+        projections = self._view_projections(view_features)
+        if view_mask is None:
+            pre_activation = projections.sum(1) + self.hidden_bias
+            if self.mask_weight is not None:
+                pre_activation = pre_activation + self.mask_weight.sum(0)
+            return self._dense_head(pre_activation)
+        mask = view_mask.to(projections.dtype)
+        scale = mask
+        if self.config.rescale_kept_views:
+            scale = mask * (mask.shape[1] / mask.sum(1, keepdim=True).clamp_min(1.0))
+        pre_activation = torch.einsum("bvh,bv->bh", projections, scale) + self.hidden_bias
+        if self.mask_weight is not None:
+            pre_activation = pre_activation + mask @ self.mask_weight
+        return self._dense_head(pre_activation)
+
+    def single_view_encodings(self, view_features: torch.Tensor) -> torch.Tensor:
+        """Encoding of each view alone, as :meth:`merge` with every other view dropped.
+
+        These embeddings live in the same space as the merged encoding, so the across-view
+        contrastive term pulls together what one camera and another see of the same scene.
+
+        Args:
+            view_features: (B, V, F) float32 from :meth:`conv_trunk`.
+
+        Returns:
+            (B, V, feature_dim) float32.
+        """
+        projections = self._view_projections(view_features)
+        if self.config.rescale_kept_views:
+            projections = projections * self.config.num_views
+        pre_activation = projections + self.hidden_bias
+        if self.mask_weight is not None:
+            pre_activation = pre_activation + self.mask_weight  # one-hot mask of view v
+        return self._dense_head(pre_activation)
+
+    def forward(self, images: torch.Tensor, view_mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Visual encoding (B, feature_dim) of images (B, V, C, H, W); see :meth:`merge`."""
+        return self.merge(self.conv_trunk(images), view_mask)
+
+
+class LowDimEncoder(nn.Module):
+    """Joint angles + goal -> encoding: one dense layer + ReLU (paper's "joint encoding").
+
+    Inputs should already be normalised (e.g. :class:`clamgen.agents.networks.RunningNormalizer`):
+    joint angles in radians and goals in metres differ in scale by an order of magnitude.
+    """
+
+    def __init__(self, input_dim: int, encoding_dim: int) -> None:
+        super().__init__()
+        self.dense = nn.Linear(input_dim, encoding_dim)
+
+    @classmethod
+    def from_config(cls, config: EncoderConfig) -> LowDimEncoder:
+        """Sized by ``config.low_dim_input`` and ``config.low_dim_size``."""
+        return cls(config.low_dim_input, config.low_dim_size)
+
+    def forward(self, low_dim: torch.Tensor) -> torch.Tensor:
+        """(B, input_dim) float32 -> (B, encoding_dim) float32, non-negative."""
+        return F.relu(self.dense(low_dim))
+
+
+def fuse(visual: torch.Tensor, low_dim: torch.Tensor) -> torch.Tensor:
+    """Multi-modal embedding: concat of visual (B, Dv) and low-dim (B, Dl) -> (B, Dv + Dl)."""
+    return torch.cat([visual, low_dim], dim=-1)
+
+
+def view_dropout_mask(
+    batch_size: int,
+    num_views: int,
+    drop_prob: float,
+    generator: torch.Generator | None = None,
+    device: torch.device | str | None = None,
+) -> torch.Tensor:
+    """Random view-dropout mask that never drops every view of a sample.
+
+    Each view is dropped independently with probability ``drop_prob``; in a sample where that
+    dropped all of them, one view drawn uniformly is kept instead. A view is therefore dropped at
+    rate ``p - p**V / V`` (0.245 for p = 0.25, V = 3), and with V = 1 never.
+
+    Args:
+        batch_size: number B of samples.
+        num_views: number V of views per sample.
+        drop_prob: probability p in [0, 1] of dropping each view.
+        generator: torch generator for reproducible masks (on ``device``); None uses the global.
+        device: device of the mask (default: the generator's, else CPU).
+
+    Returns:
+        (B, V) bool, True = view kept; every row has at least one True.
+    """
+    if not 0.0 <= drop_prob <= 1.0:
+        raise ValueError(f"drop_prob must be in [0, 1], got {drop_prob}")
+    if device is None:
+        device = generator.device if generator is not None else "cpu"
+    shape = (batch_size, num_views)
+    kept = torch.rand(shape, generator=generator, device=device) >= drop_prob
+    rescue = torch.randint(num_views, (batch_size,), generator=generator, device=device)
+    none_kept = ~kept.any(1)
+    kept[none_kept, rescue[none_kept]] = True
+    return kept

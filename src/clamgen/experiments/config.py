@@ -1,0 +1,190 @@
+"""Training configuration: nested frozen dataclasses (env / agent / replay / loop) and presets.
+
+Presets are TOML files in `clamgen/presets/` (or any path): tables `[env]`, `[agent]`,
+`[replay]`, `[loop]` override the defaults below; the command line overrides the preset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from clamgen.agents.sac import SACConfig
+from clamgen.envs import ENV_IDS
+from clamgen.replay.buffer import ReplayConfig
+from clamgen.schedules import Constant, LinearRamp, Schedule
+
+PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
+# Evaluation tasks come from env.reset(seed=EVAL_SEED_BASE + i); training envs are seeded with
+# small integers (seed * 1000 + env index) and then continue their own random streams, so the
+# two sets of tasks never share a seed.
+EVAL_SEED_BASE = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Which environment to train in, and how many copies step in lockstep."""
+
+    env_id: str = ENV_IDS[0]
+    """Gymnasium id (`CLAMGen/Reach-v0`, `CLAMGen/ReachObstacles-v0`, or any goal env)."""
+    target_speed: float | str = 0.0
+    """Training target speed in m/s, or "variable" (CLAMGen envs only)."""
+    num_envs: int = 4
+    """Environments stepped together; the policy acts on all of them in one batch."""
+    num_views: int = 0
+    """Camera views rendered into observations (0: joint observations only)."""
+    image_size: int = 128
+    """Side in pixels of each view."""
+    obs_mode: str = "joints"
+    """"joints", "images" or "both" (CLAMGen envs)."""
+    collision_penalty: Schedule = field(default_factory=Constant)
+    """Collision penalty over training progress (paper: LinearRamp(0.3, 0.9, 0.0, 0.1))."""
+
+    def __post_init__(self) -> None:
+        if self.num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {self.num_envs}")
+
+    def make_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for `gym.make` of a CLAMGen env."""
+        return {
+            "target_speed": self.target_speed,
+            "num_views": self.num_views,
+            "image_size": self.image_size,
+            "obs_mode": self.obs_mode,
+        }
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """The training loop: budget, update ratio, evaluation, checkpoints, logging."""
+
+    total_env_steps: int = 60_000
+    """Environment steps (summed over all envs) to train for."""
+    learning_starts: int = 2_000
+    """Steps of uniformly random actions before the first update."""
+    updates_per_step: float = 0.5
+    """Gradient updates per environment step."""
+    eval_every_steps: int = 5_000
+    """Evaluate the deterministic policy every this many env steps (0: never)."""
+    num_eval_episodes: int = 50
+    """Episodes per periodic evaluation, on fixed evaluation seeds."""
+    checkpoint_every_steps: int = 5_000
+    """Write a resumable checkpoint every this many env steps."""
+    log_every_steps: int = 1_000
+    """Write metrics (CSV, TensorBoard) every this many env steps."""
+    seed: int = 0
+    """Seed of the environments, the agent and the replay sampling."""
+    torch_threads: int = 2
+    """Threads PyTorch may use (this machine has 2 cores)."""
+    stop_at_success: float | None = None
+    """Stop early once a periodic evaluation reaches this success rate (None: never)."""
+
+    def __post_init__(self) -> None:
+        if self.total_env_steps < 1:
+            raise ValueError(f"total_env_steps must be >= 1, got {self.total_env_steps}")
+        if self.updates_per_step < 0:
+            raise ValueError(f"updates_per_step must be >= 0, got {self.updates_per_step}")
+        for name in ("eval_every_steps", "checkpoint_every_steps", "log_every_steps"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything `clamgen train` needs; written as JSON into every run directory."""
+
+    run_dir: Path = Path("runs/base")
+    """Directory for config, metrics, TensorBoard events and checkpoints."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """Environment settings."""
+    agent: SACConfig = field(default_factory=SACConfig)
+    """SAC settings."""
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    """Replay buffer and hindsight relabelling settings."""
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    """Training loop settings."""
+
+
+# ---------------------------------------------------------------- (de)serialisation
+_SCHEDULES = {"linear_ramp": LinearRamp, "constant": Constant}
+
+
+def to_jsonable(config: Any) -> Any:
+    """A dataclass config as JSON-compatible data (schedules tagged with their kind)."""
+    if dataclasses.is_dataclass(config):
+        data = {f.name: to_jsonable(getattr(config, f.name)) for f in dataclasses.fields(config)}
+        for kind, cls in _SCHEDULES.items():
+            if type(config) is cls:
+                data = {"kind": kind, **data}
+        return data
+    if isinstance(config, Path):
+        return str(config)
+    if isinstance(config, tuple | list):
+        return [to_jsonable(v) for v in config]
+    return config
+
+
+def from_dict(cls: type, data: dict[str, Any]) -> Any:
+    """Build dataclass `cls` from (possibly partial) nested data; unknown keys are errors."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} fields {sorted(unknown)}; known: {sorted(names)}")
+    kwargs = {}
+    for name, value in data.items():
+        kwargs[name] = _convert(hints[name], value, f"{cls.__name__}.{name}")
+    return cls(**kwargs)
+
+
+def _convert(hint: Any, value: Any, where: str) -> Any:
+    if hint is Schedule or (
+        typing.get_origin(hint) is not None and LinearRamp in typing.get_args(hint)
+    ):
+        if isinstance(value, int | float):
+            return Constant(float(value))
+        data = dict(value)
+        kind = data.pop("kind", None)
+        if kind not in _SCHEDULES:
+            raise ValueError(f"{where}: schedule needs kind in {sorted(_SCHEDULES)}, got {kind!r}")
+        return from_dict(_SCHEDULES[kind], data)
+    if dataclasses.is_dataclass(hint):
+        return from_dict(hint, value)
+    if hint is Path:
+        return Path(value)
+    if typing.get_origin(hint) is tuple and isinstance(value, list):
+        return tuple(value)
+    return value
+
+
+def config_to_json(config: TrainConfig) -> str:
+    return json.dumps(to_jsonable(config), indent=2)
+
+
+def config_from_json(text: str) -> TrainConfig:
+    return from_dict(TrainConfig, json.loads(text))
+
+
+def resolve_preset(name_or_path: str) -> Path:
+    """A preset file: a path, or the name of a file in `clamgen/presets/` (without .toml)."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" and path.exists():
+        return path
+    candidate = PRESET_DIR / f"{name_or_path}.toml"
+    if candidate.exists():
+        return candidate
+    known = sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+    raise FileNotFoundError(f"no preset {name_or_path!r}; known presets: {known}, or a .toml path")
+
+
+def load_preset(name_or_path: str) -> TrainConfig:
+    """The TrainConfig of a preset file (missing fields keep their defaults)."""
+    path = resolve_preset(name_or_path)
+    with path.open("rb") as f:
+        data = tomllib.load(f)
+    return from_dict(TrainConfig, data)

@@ -1,0 +1,455 @@
+"""`clamgen train`: goal-conditioned SAC with HER and reversible HER (paper, stage 1).
+
+The loop, per iteration: every env takes one step with the current policy (uniform random
+actions before `learning_starts`), finished episodes go into the replay buffer (which adds the
+reversible-HER episodes of failed ones), then `updates_per_step` gradient updates per env step.
+Metrics go to `metrics.csv` and TensorBoard; checkpoints resume exactly, including the episodes
+in progress, after a crash (the last periodic checkpoint) or Ctrl-C (a checkpoint at once).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import signal
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from clamgen.agents.sac import NonFiniteLossError, SACAgent, SACConfig
+from clamgen.envs import ENV_IDS, ReachEnv
+from clamgen.envs.reach_env import EnvState
+from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.config import (
+    EVAL_SEED_BASE,
+    EnvConfig,
+    TrainConfig,
+    config_from_json,
+    config_to_json,
+)
+from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
+from clamgen.replay import EpisodeRecorder, ReplayBuffer, obs_spec_from_space
+from clamgen.sim.scene import Obstacles
+from clamgen.sim.state import SimState
+from clamgen.tasks.reach import Task
+
+CHECKPOINT_NAME = "latest.pt"
+REPLAY_NAME = "latest_replay.npz"
+POLICY_NAME = "policy.pt"
+# What a policy file keeps of the agent's state: acting needs the actor and normaliser, stage 2
+# the critic as the frozen base Q-function.
+POLICY_STATE_KEYS = ("config", "actor", "critic", "normalizer", "log_alpha")
+# Successes of the last this many training episodes feed the progress bar's rate.
+RECENT_EPISODES = 100
+
+
+def make_env(config: EnvConfig) -> gym.Env:
+    """A training or evaluation env. CLAMGen ids are built bare (their own 100-step truncation,
+    no wrappers) so their full state can be checkpointed; other ids go through `gym.make`."""
+    if config.env_id in ENV_IDS:
+        spec = gym.spec(config.env_id)
+        kwargs = {**spec.kwargs, **config.make_kwargs()}
+        kwargs["max_episode_steps"] = spec.max_episode_steps
+        return ReachEnv(**kwargs)
+    return gym.make(config.env_id)
+
+
+class MetricLogger:
+    """Scalars to `metrics.csv` (long format: step, wall_time_s, metric, value) and TensorBoard."""
+
+    def __init__(self, run_dir: Path) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.path = run_dir / "metrics.csv"
+        new = not self.path.exists()
+        self._file = self.path.open("a", newline="")
+        self._csv = csv.writer(self._file)
+        if new:
+            self._csv.writerow(["step", "wall_time_s", "metric", "value"])
+        self._tb = SummaryWriter(str(run_dir / "tensorboard"))
+
+    def log(self, step: int, wall_time_s: float, metrics: dict[str, float]) -> None:
+        for key, value in metrics.items():
+            self._csv.writerow([step, f"{wall_time_s:.2f}", key, f"{value:.6g}"])
+            self._tb.add_scalar(key, value, step)
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+        self._tb.close()
+
+
+@dataclasses.dataclass
+class Progress:
+    """Counters that a checkpoint carries over."""
+
+    env_steps: int = 0
+    episodes: int = 0
+    updates: int = 0
+    updates_owed: float = 0.0
+    wall_time_s: float = 0.0
+    best_eval_success: float = -1.0
+
+
+class Trainer:
+    """Holds envs, agent, buffer and counters; `run()` trains until the budget is spent."""
+
+    def __init__(self, config: TrainConfig) -> None:
+        self.config = config
+        loop = config.loop
+        torch.set_num_threads(loop.torch_threads)
+        self.run_dir = Path(config.run_dir)
+        self.checkpoint_dir = self.run_dir / "checkpoints"
+        self.envs = [make_env(config.env) for _ in range(config.env.num_envs)]
+        self.eval_env = make_env(config.env)
+        probe = self.envs[0]
+        # The loop seed seeds everything, the agent included.
+        agent_config = dataclasses.replace(config.agent, seed=loop.seed)
+        self.agent = SACAgent.from_spaces(agent_config, probe.observation_space, probe.action_space)
+        self.buffer = ReplayBuffer(
+            config.replay,
+            obs_spec_from_space(probe.observation_space),
+            int(np.prod(probe.action_space.shape)),
+            probe.unwrapped.compute_reward,
+        )
+        self.rng = np.random.default_rng(loop.seed)
+        self.progress = Progress()
+        self.recent_successes: deque[bool] = deque(maxlen=RECENT_EPISODES)
+        self.obs: list[dict[str, np.ndarray]] = []
+        self.recorders: list[EpisodeRecorder] = []
+
+    # ------------------------------------------------------------------------ run
+    def start_or_resume(self) -> bool:
+        """Resume from the run directory's checkpoint if there is one; True if resumed."""
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        config_path = self.run_dir / "config.json"
+        if (self.checkpoint_dir / CHECKPOINT_NAME).exists():
+            self._load_checkpoint()
+            return True
+        config_path.write_text(config_to_json(self.config))
+        for i, env in enumerate(self.envs):
+            obs, _ = env.reset(seed=self.config.loop.seed * 1000 + i)
+            self.obs.append(obs)
+            self.recorders.append(EpisodeRecorder(obs))
+        self._apply_curriculum()
+        return False
+
+    def run(self, show_progress: bool = True) -> dict[str, float]:
+        """Train to `loop.total_env_steps`; returns the last evaluation's summary."""
+        loop = self.config.loop
+        resumed = self.start_or_resume()
+        logger = MetricLogger(self.run_dir)
+        bar = tqdm(
+            total=loop.total_env_steps,
+            initial=self.progress.env_steps,
+            disable=not show_progress,
+            unit="step",
+            desc="resumed" if resumed else "training",
+            dynamic_ncols=True,
+        )
+        start = time.perf_counter() - self.progress.wall_time_s
+        last_eval: dict[str, float] = {}
+        train_metrics: dict[str, float] = {}
+        self.stop_requested = False
+        previous_handler = _install_interrupt_handler(self)
+        try:
+            while self.progress.env_steps < loop.total_env_steps:
+                if self.stop_requested:
+                    raise KeyboardInterrupt
+                steps_before = self.progress.env_steps
+                self._collect_step()
+                train_metrics = self._update() or train_metrics
+                self.progress.wall_time_s = time.perf_counter() - start
+                bar.update(self.progress.env_steps - steps_before)
+                if self._crossed(steps_before, loop.log_every_steps):
+                    rollout = self._rollout_metrics()
+                    logger.log(
+                        self.progress.env_steps, self.progress.wall_time_s, train_metrics | rollout
+                    )
+                    bar.set_postfix(
+                        success=f"{rollout.get('rollout/success_rate', 0):.2f}",
+                        sps=f"{self.progress.env_steps / max(self.progress.wall_time_s, 1e-9):.0f}",
+                    )
+                if self._crossed(steps_before, loop.eval_every_steps):
+                    last_eval = self.evaluate()
+                    logger.log(self.progress.env_steps, self.progress.wall_time_s, last_eval)
+                    if self._stop_early(last_eval):
+                        break
+                if self._crossed(steps_before, loop.checkpoint_every_steps):
+                    self.save_checkpoint()
+        except KeyboardInterrupt:
+            self.save_checkpoint()
+            bar.close()
+            logger.close()
+            print(f"\ninterrupted: checkpoint saved in {self.checkpoint_dir}; run again to resume")
+            raise
+        except NonFiniteLossError as error:
+            bar.close()
+            logger.close()
+            raise SystemExit(
+                f"training stopped: {error}. The last good checkpoint in {self.checkpoint_dir} "
+                "is intact (nothing was saved after the failure)."
+            ) from error
+        finally:
+            _restore_interrupt_handler(previous_handler)
+        bar.close()
+        if not last_eval or last_eval.get("eval/env_steps") != self.progress.env_steps:
+            last_eval = self.evaluate()
+            logger.log(self.progress.env_steps, self.progress.wall_time_s, last_eval)
+        self.save_checkpoint()
+        self.export_policy(self.run_dir / POLICY_NAME)
+        logger.close()
+        return last_eval
+
+    def _crossed(self, before: int, every: int) -> bool:
+        return every > 0 and before // every < self.progress.env_steps // every
+
+    def _stop_early(self, metrics: dict[str, float]) -> bool:
+        target = self.config.loop.stop_at_success
+        return target is not None and metrics["eval/success_rate"] >= target
+
+    # ------------------------------------------------------------------- pieces
+    def _collect_step(self) -> None:
+        """One step in every env; finished episodes go to the buffer."""
+        loop = self.config.loop
+        num_envs = len(self.envs)
+        if self.progress.env_steps < loop.learning_starts:
+            actions = self.rng.uniform(-1.0, 1.0, (num_envs, *self.envs[0].action_space.shape))
+        else:
+            batch = {key: np.stack([o[key] for o in self.obs]) for key in self.obs[0]}
+            actions = self.agent.act(batch)
+        for i, env in enumerate(self.envs):
+            obs, _, terminated, truncated, info = env.step(actions[i])
+            self.recorders[i].add(actions[i], obs, info)
+            if terminated or truncated:
+                episode = self.recorders[i].episode()
+                self.buffer.add_episode(episode)
+                self.recent_successes.append(not episode.failed)
+                self.progress.episodes += 1
+                obs, _ = env.reset()
+                self.recorders[i] = EpisodeRecorder(obs)
+            self.obs[i] = obs
+        self.progress.env_steps += num_envs
+        self._apply_curriculum()
+
+    def _apply_curriculum(self) -> None:
+        progress = self.progress.env_steps / self.config.loop.total_env_steps
+        penalty = self.config.env.collision_penalty(progress)
+        for env in (*self.envs, self.eval_env):
+            if hasattr(env.unwrapped, "set_collision_penalty"):
+                env.unwrapped.set_collision_penalty(penalty)
+
+    def _update(self) -> dict[str, float] | None:
+        loop = self.config.loop
+        if self.progress.env_steps < loop.learning_starts or len(self.buffer) == 0:
+            return None
+        self.progress.updates_owed += len(self.envs) * loop.updates_per_step
+        metrics = None
+        while self.progress.updates_owed >= 1.0:
+            batch = self.buffer.sample(self.agent.config.batch_size, self.rng)
+            metrics = self.agent.update(batch)
+            self.progress.updates += 1
+            self.progress.updates_owed -= 1.0
+        return metrics
+
+    def _rollout_metrics(self) -> dict[str, float]:
+        wall = max(self.progress.wall_time_s, 1e-9)
+        metrics = {
+            "rollout/episodes": float(self.progress.episodes),
+            "rollout/updates": float(self.progress.updates),
+            "rollout/env_steps_per_s": self.progress.env_steps / wall,
+            "rollout/replay_transitions": float(len(self.buffer)),
+        }
+        if self.recent_successes:
+            metrics["rollout/success_rate"] = float(np.mean(self.recent_successes))
+        return metrics
+
+    def evaluate(self) -> dict[str, float]:
+        """Deterministic policy on `num_eval_episodes` fixed evaluation seeds."""
+        seeds = EVAL_SEED_BASE + np.arange(self.config.loop.num_eval_episodes)
+        records = evaluate(self.eval_env, SACPolicy(self.agent), seeds)
+        summary = {f"eval/{k}": v for k, v in summarize(records).items()}
+        summary["eval/env_steps"] = float(self.progress.env_steps)
+        self.progress.best_eval_success = max(
+            self.progress.best_eval_success, summary["eval/success_rate"]
+        )
+        return summary
+
+    # --------------------------------------------------------------- checkpoints
+    def save_checkpoint(self) -> None:
+        """Write the resumable state (replay snapshot first, then the torch file)."""
+        stamp = self.progress.env_steps
+        arrays = {f"buffer/{k}": v for k, v in self.buffer.state_dict().items()}
+        for i, env in enumerate(self.envs):
+            arrays |= {f"env{i}/{k}": v for k, v in _env_snapshot(env).items()}
+            arrays |= {f"recorder{i}/{k}": v for k, v in self.recorders[i].arrays().items()}
+        arrays["stamp"] = np.array(stamp)
+        ckpt.save_npz(self.checkpoint_dir / REPLAY_NAME, arrays)
+        payload = {
+            "format": ckpt.FORMAT,
+            "kind": ckpt.TRAINING_KIND,
+            "stamp": stamp,
+            "config": config_to_json(self.config),
+            "agent": self.agent.state_dict(),
+            "progress": dataclasses.asdict(self.progress),
+            "rng": json.dumps(self.rng.bit_generator.state),
+            "recent_successes": [bool(s) for s in self.recent_successes],
+        }
+        ckpt.save_torch(self.checkpoint_dir / CHECKPOINT_NAME, payload)
+
+    def _load_checkpoint(self) -> None:
+        path = self.checkpoint_dir / CHECKPOINT_NAME
+        payload = ckpt.load_torch(path, ckpt.TRAINING_KIND)
+        saved = config_from_json(payload["config"])
+        if _without_budget(saved) != _without_budget(self.config):
+            raise ckpt.CheckpointError(
+                f"{path} was written with a different configuration; resume with the run's own "
+                f"config ({self.run_dir / 'config.json'}) or choose a new run_dir. Only "
+                "loop.total_env_steps may change on resume."
+            )
+        arrays = ckpt.load_npz(self.checkpoint_dir / REPLAY_NAME)
+        if int(arrays["stamp"]) != payload["stamp"]:
+            raise ckpt.CheckpointError(
+                f"{REPLAY_NAME} (step {int(arrays['stamp'])}) and {CHECKPOINT_NAME} "
+                f"(step {payload['stamp']}) do not belong together"
+            )
+        ckpt.load_agent_state(self.agent, payload["agent"], path)
+        self.progress = Progress(**payload["progress"])
+        self.rng.bit_generator.state = json.loads(payload["rng"])
+        self.recent_successes.extend(payload["recent_successes"])
+        self.buffer.load_state_dict(_sub(arrays, "buffer/"))
+        self.obs, self.recorders = [], []
+        for i, env in enumerate(self.envs):
+            _restore_env(env, _sub(arrays, f"env{i}/"))
+            recorder = EpisodeRecorder.from_arrays(_sub(arrays, f"recorder{i}/"))
+            self.recorders.append(recorder)
+            self.obs.append({k[4:]: v[-1] for k, v in recorder.arrays().items() if k[:4] == "obs/"})
+        (self.run_dir / "config.json").write_text(config_to_json(self.config))
+        self._apply_curriculum()
+
+    def export_policy(self, path: Path) -> None:
+        """A small file with what acting and stage 2 need (no optimiser or replay state)."""
+        state = self.agent.state_dict()
+        payload = {
+            "format": ckpt.FORMAT,
+            "kind": ckpt.POLICY_KIND,
+            "config": config_to_json(self.config),
+            "env_steps": self.progress.env_steps,
+            "agent": {
+                k: state[k] for k in ("config", "actor", "critic", "normalizer", "log_alpha")
+            },
+        }
+        ckpt.save_torch(path, payload)
+
+
+def load_policy_agent(path: Path) -> tuple[SACAgent, TrainConfig]:
+    """The SAC agent of a policy file (`export_policy`) and the config that trained it."""
+    payload = ckpt.load_torch(Path(path), ckpt.POLICY_KIND)
+    config = config_from_json(payload["config"])
+    agent_config = SACConfig(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in payload["agent"]["config"].items()}
+    )
+    env = make_env(dataclasses.replace(config.env, num_views=0, obs_mode="joints"))
+    agent = SACAgent.from_spaces(agent_config, env.observation_space, env.action_space)
+    env.close()
+    state = payload["agent"]
+    try:
+        agent.actor.load_state_dict(state["actor"])
+        agent.critic.load_state_dict(state["critic"])
+        agent.critic_target.load_state_dict(state["critic"])
+        agent.normalizer.load_state_dict(state["normalizer"])
+        with torch.no_grad():
+            agent.log_alpha.copy_(state["log_alpha"])
+    except (RuntimeError, KeyError) as error:
+        raise ckpt.CheckpointError(f"{path} does not match its own config: {error}") from error
+    agent._fast_actor = agent._make_fast_actor()
+    return agent, config
+
+
+def _install_interrupt_handler(trainer: Trainer):
+    """First Ctrl-C: finish the current iteration, checkpoint, stop. Second: stop at once."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        if trainer.stop_requested:
+            raise KeyboardInterrupt
+        trainer.stop_requested = True
+        print("\nstopping after this step to write a checkpoint (Ctrl-C again to abort)")
+
+    return signal.signal(signal.SIGINT, handler)
+
+
+def _restore_interrupt_handler(previous) -> None:
+    if previous is not None:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _without_budget(config: TrainConfig) -> str:
+    loop = dataclasses.replace(config.loop, total_env_steps=1, stop_at_success=None)
+    return config_to_json(dataclasses.replace(config, loop=loop, run_dir=Path(".")))
+
+
+def _sub(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    return {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}
+
+
+def _env_snapshot(env: gym.Env) -> dict[str, np.ndarray]:
+    """Arrays that restore a CLAMGen env's episode exactly (empty for other envs)."""
+    unwrapped = env.unwrapped
+    if not isinstance(unwrapped, ReachEnv):
+        return {}
+    state = unwrapped.get_state()
+    task = state.task
+    arrays = {
+        "joints": state.sim.joints,
+        "target": state.sim.target_position_m,
+        "kinds": state.sim.obstacles.kinds,
+        "positions": state.sim.obstacles.positions_m,
+        "half_sizes": state.sim.obstacles.half_sizes_m,
+        "velocity": state.target_velocity_mps,
+        "num_steps": np.array(state.num_steps),
+        "rng": np.array(json.dumps(unwrapped.np_random.bit_generator.state)),
+    }
+    if task is not None:
+        arrays |= {
+            "task/start_joints": task.start_joints,
+            "task/target": task.target_position_m,
+            "task/velocity": task.target_velocity_mps,
+            "task/speed": np.array(json.dumps(task.speed)),
+        }
+    return arrays
+
+
+def _restore_env(env: gym.Env, arrays: dict[str, np.ndarray]) -> None:
+    unwrapped = env.unwrapped
+    if not arrays or not isinstance(unwrapped, ReachEnv):
+        env.reset()  # a foreign env: its episode in progress is lost, as documented
+        return
+    obstacles = Obstacles(arrays["kinds"], arrays["positions"], arrays["half_sizes"])
+    task = None
+    if "task/start_joints" in arrays:
+        task = Task(
+            arrays["task/start_joints"],
+            arrays["task/target"],
+            arrays["task/velocity"],
+            obstacles,
+            json.loads(str(arrays["task/speed"])),
+        )
+    unwrapped.reset()  # initialises np_random; everything is then overwritten
+    unwrapped.np_random.bit_generator.state = json.loads(str(arrays["rng"]))
+    sim = SimState(arrays["joints"], arrays["target"], obstacles)
+    unwrapped.set_state(EnvState(sim, arrays["velocity"], int(arrays["num_steps"]), task))
+
+
+def train(config: TrainConfig, show_progress: bool = True) -> dict[str, Any]:
+    """Train (or resume) and return the final evaluation summary."""
+    return Trainer(config).run(show_progress=show_progress)
