@@ -147,10 +147,87 @@ def _train_config(argv: list[str]):
     )
 
 
+SHIPPED_POLICIES = {"base": "base.pt"}
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Reproduce the paper's Table 1 for a joint policy on held-out tasks."""
+
+    policy: str = "base"
+    """`base` (the joint policy shipped with the package), a policy file written by
+    `clamgen train` (`RUN_DIR/policy.pt`), or `ik` (the IK-interpolation baseline itself)."""
+    num_tasks: int = 200
+    """Evaluation tasks per speed row (the paper: 200)."""
+    speeds: tuple[str, ...] = ("0", "0.05", "0.1", "0.2", "variable")
+    """Target speeds in m/s, or `variable`, one table row each."""
+    out: Path | None = None
+    """Output stem: writes OUT.json and OUT.md (default: runs/eval/table1_<policy>)."""
+
+
+def resolve_policy_path(name: str) -> Path:
+    """A shipped policy's file, or `name` as a path."""
+    if name in SHIPPED_POLICIES:
+        from importlib.resources import files
+
+        return Path(str(files("clamgen") / "checkpoints" / SHIPPED_POLICIES[name]))
+    return Path(name)
+
+
+def evaluate_table(config: EvalConfig) -> list:
+    """Evaluate a policy on held-out tasks and print the paper's Table 1 beside ours."""
+    from clamgen.baselines import IKInterpolationPolicy
+    from clamgen.experiments.checkpoint import CheckpointError
+    from clamgen.experiments.evaluate import SACPolicy
+    from clamgen.experiments.tables import table1, table1_markdown, write_table1
+    from clamgen.experiments.train import load_policy_agent
+    from clamgen.tasks.reach import validate_speed
+
+    if config.num_tasks < 1:
+        raise SystemExit("num_tasks must be >= 1")
+    try:
+        speeds = [validate_speed(s if s == "variable" else float(s)) for s in config.speeds]
+    except ValueError as error:
+        raise SystemExit(f"bad --speeds: {error}") from error
+    if config.policy == "ik":
+        policy, source = IKInterpolationPolicy(), "ik_interpolation"
+    else:
+        path = resolve_policy_path(config.policy)
+        try:
+            agent, _ = load_policy_agent(path)
+        except CheckpointError as error:
+            raise SystemExit(str(error)) from error
+        policy, source = SACPolicy(agent), str(path)
+    name = Path(config.policy).stem if config.policy not in ("ik", "base") else config.policy
+    out = config.out or Path("runs/eval") / f"table1_{name}"
+    print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")
+    rows = table1(
+        policy,
+        config.num_tasks,
+        speeds,
+        progress=lambda row: print(
+            f"  speed {row.label():>16}: success {row.success_rate:.3f}, path ratio "
+            f"{row.path_ratio:.3f}, {row.median_act_ms:.4f} ms/action"
+        ),
+    )
+    meta = {
+        "policy": source,
+        "observation": "joints",
+        "num_tasks": config.num_tasks,
+        "command": "clamgen eval " + " ".join(sys.argv[2:]),
+    }
+    write_table1(rows, out, meta)
+    print()
+    print(table1_markdown(rows))
+    print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
+    return rows
+
+
 # Subcommand name -> (config builder from argv, handler). Each handler takes its config.
 COMMANDS: dict[str, tuple[Callable, Callable]] = {
     "demo": (lambda argv: tyro.cli(DemoConfig, args=argv, prog="clamgen demo"), demo),
     "train": (_train_config, train),
+    "eval": (lambda argv: tyro.cli(EvalConfig, args=argv, prog="clamgen eval"), evaluate_table),
 }
 
 

@@ -174,7 +174,7 @@ def test_presets_load_and_config_round_trips_through_json():
     assert config_from_json(config_to_json(config)) == config
     ramp = dataclasses.replace(config, env=EnvConfig(collision_penalty=LinearRamp()))
     assert config_from_json(config_to_json(ramp)) == ramp
-    with pytest.raises(ValueError, match="unknown .*Config fields"):
+    with pytest.raises(ValueError, match=r"unknown .*Config fields"):
         config_from_json(config_to_json(config).replace('"seed"', '"sead"'))
     with pytest.raises(FileNotFoundError, match="known presets"):
         load_preset("no-such-preset")

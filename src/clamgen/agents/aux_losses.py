@@ -1,0 +1,210 @@
+"""Auxiliary losses of stage 2 (paper, "Learned 3D fusion for Obstacle-Avoidance").
+
+- CURL's contrastive loss (Srinivas et al., 2020): the query is the online encoding of one random
+  crop of an observation, the positive key the momentum (EMA) encoder's encoding of another crop
+  of the same observation, the negatives the keys of the other observations in the batch;
+  similarity ``q^T W k`` with a learned bilinear W; InfoNCE = cross-entropy over the batch.
+- The across-view term: the encodings of different camera views of the same scene are
+  positives, those of views of other scenes negatives. We use the pairwise form of Contrastive
+  Multiview Coding (Tian et al., 2019): for every ordered pair of views i != j, view i of scene b
+  is a query whose positive key is view j of scene b and whose negatives are view j of the other
+  scenes; the loss averages the V (V - 1) InfoNCE terms. The per-view embeddings are
+  :meth:`clamgen.agents.encoders.MultiViewEncoder.single_view_encodings`.
+- The collision-dynamics loss: from the latent z_t and the action a_t, predict whether the step
+  collides; binary cross-entropy on the logit, with an optional positive-class weight because
+  collisions are a minority of steps.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from clamgen.agents.networks import mlp
+from clamgen.agents.sac import soft_update
+
+__all__ = [
+    "AuxLossConfig",
+    "CURLHead",
+    "CollisionHead",
+    "across_view_loss",
+    "bilinear_logits",
+    "collision_loss",
+    "curl_loss",
+    "make_momentum_copy",
+    "momentum_update",
+]
+
+
+@dataclass(frozen=True)
+class AuxLossConfig:
+    """Weights and sizes of the stage-2 auxiliary losses (each weight 0 switches its term off)."""
+
+    curl_weight: float = 1.0
+    """Weight of CURL's instance contrastive loss (crop vs crop of one observation)."""
+    across_view_weight: float = 1.0
+    """Weight of the across-view contrastive term (view vs view of one scene)."""
+    collision_weight: float = 1.0
+    """Weight of the collision-prediction loss."""
+    collision_pos_weight: float | None = None
+    """Factor on the loss of colliding steps (BCE ``pos_weight``); about (non-colliding steps) /
+    (colliding steps) balances the classes; None weighs both classes alike."""
+    collision_hidden_sizes: tuple[int, ...] = (256,)
+    """Hidden ReLU layer widths of the collision head."""
+    encoder_momentum_tau: float = 0.05
+    """EMA rate of the key encoder: target <- (1 - tau) target + tau online (CURL's 0.05)."""
+
+
+def bilinear_logits(query: torch.Tensor, key: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Similarity ``q_b^T W k_c`` for every query b and key c, with each row's max subtracted.
+
+    Subtracting the row max leaves the softmax unchanged and keeps exp() finite (CURL does the
+    same).
+
+    Args:
+        query: (..., B, D) float.
+        key: (..., B, D) float.
+        weight: (D, D) float, the bilinear form W.
+
+    Returns:
+        (..., B, B) float, row b = query b against every key.
+    """
+    logits = (query @ weight) @ key.transpose(-1, -2)
+    return logits - logits.amax(-1, keepdim=True).detach()
+
+
+def curl_loss(query_z: torch.Tensor, key_z: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """CURL's InfoNCE loss; the positive of query b is key b (the diagonal).
+
+    Args:
+        query_z: (B, D) float, online encodings of one crop of each observation.
+        key_z: (B, D) float, encodings of another crop of the same observations, normally from
+            the momentum encoder (no gradient); gradients reach ``weight`` and ``query_z``.
+        weight: (D, D) float, the bilinear form W.
+
+    Returns:
+        Scalar float: mean cross-entropy over the B queries; log(B) for uninformative logits.
+    """
+    logits = bilinear_logits(query_z, key_z, weight)
+    labels = torch.arange(len(logits), device=logits.device)
+    return F.cross_entropy(logits, labels)
+
+
+def across_view_loss(
+    query_views: torch.Tensor, key_views: torch.Tensor, weight: torch.Tensor
+) -> torch.Tensor:
+    """Across-view InfoNCE: views of one scene are positives, other scenes' views negatives.
+
+    For each ordered view pair (i, j), i != j, query ``query_views[b, i]`` is scored against
+    ``key_views[c, j]`` for every scene c of the batch; the positive is c = b. The loss is the
+    mean over the B * V * (V - 1) queries.
+
+    Args:
+        query_views: (B, V, D) float, per-view embeddings (online encoder).
+        key_views: (B, V, D) float, per-view embeddings of the same scenes (momentum encoder for
+            keys without gradient, or ``query_views`` itself for a symmetric loss).
+        weight: (D, D) float, the bilinear form W.
+
+    Returns:
+        Scalar float; 0 (with a graph) when V = 1, which has no view pair.
+    """
+    batch, num_views = query_views.shape[:2]
+    if num_views < 2:
+        return query_views.sum() * 0.0 + weight.sum() * 0.0
+    # (V, B, D) queries against (V, B, D) keys: logits[i, j, b, c] = q[b, i]^T W k[c, j].
+    queries = (query_views @ weight).transpose(0, 1)
+    keys = key_views.transpose(0, 1)
+    logits = torch.einsum("ibd,jcd->ijbc", queries, keys)
+    off_diagonal = ~torch.eye(num_views, dtype=torch.bool, device=logits.device)
+    logits = logits[off_diagonal]  # (V (V - 1), B, B)
+    logits = logits - logits.amax(-1, keepdim=True).detach()
+    labels = torch.arange(batch, device=logits.device).expand(len(logits), batch)
+    return F.cross_entropy(logits.flatten(0, 1), labels.flatten())
+
+
+class CURLHead(nn.Module):
+    """Bilinear forms of the two contrastive terms: W for CURL's crop-vs-crop InfoNCE and, when
+    ``across_view``, a separate W for the view-vs-view term.
+
+    Both start at the identity, so the first logits are plain dot products of the encodings
+    (CURL starts from a random W; the identity gives a useful signal from the first update).
+    """
+
+    def __init__(self, feature_dim: int, across_view: bool = True) -> None:
+        super().__init__()
+        self.W = nn.Parameter(torch.eye(feature_dim))
+        self.W_view: nn.Parameter | None = None
+        if across_view:
+            self.W_view = nn.Parameter(torch.eye(feature_dim))
+
+    def instance_loss(self, query_z: torch.Tensor, key_z: torch.Tensor) -> torch.Tensor:
+        """:func:`curl_loss` with this head's W: query (B, D), key (B, D) -> scalar."""
+        return curl_loss(query_z, key_z, self.W)
+
+    def across_view_loss(self, query_views: torch.Tensor, key_views: torch.Tensor) -> torch.Tensor:
+        """:func:`across_view_loss` with this head's W_view: (B, V, D) twice -> scalar."""
+        if self.W_view is None:
+            raise RuntimeError("this CURLHead was built with across_view=False")
+        return across_view_loss(query_views, key_views, self.W_view)
+
+    def forward(self, query_z: torch.Tensor, key_z: torch.Tensor) -> torch.Tensor:
+        """Same as :meth:`instance_loss`."""
+        return self.instance_loss(query_z, key_z)
+
+
+def make_momentum_copy(module: nn.Module) -> nn.Module:
+    """A frozen deep copy of ``module`` to serve as its momentum (EMA) target; keep it in eval
+    use only and move it with :func:`momentum_update`."""
+    return copy.deepcopy(module).requires_grad_(False)
+
+
+@torch.no_grad()
+def momentum_update(target: nn.Module, online: nn.Module, tau: float) -> None:
+    """EMA step in place: every target parameter <- (1 - tau) target + tau online.
+
+    Buffers (none in the encoders here) are copied as they are. Same convention as
+    :func:`clamgen.agents.sac.soft_update`, whose tau is the critic's.
+    """
+    if not 0.0 <= tau <= 1.0:
+        raise ValueError(f"tau must be in [0, 1], got {tau}")
+    soft_update(target, online, tau)
+    for target_buffer, online_buffer in zip(target.buffers(), online.buffers(), strict=True):
+        target_buffer.copy_(online_buffer)
+
+
+class CollisionHead(nn.Module):
+    """Logit that executing action a_t from latent z_t collides (paper's collision dynamics).
+
+    An MLP on ``concat(z_t, a_t)``; ``sigmoid(logit)`` is the predicted collision probability.
+    """
+
+    def __init__(self, latent_dim: int, action_dim: int, hidden_sizes: tuple[int, ...]) -> None:
+        super().__init__()
+        self.net = mlp(latent_dim + action_dim, hidden_sizes, 1)
+
+    def forward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Logits (B,) float from latent (B, Dz) and action (B, A) in [-1, 1]."""
+        return self.net(torch.cat([latent, action], dim=-1)).squeeze(-1)
+
+
+def collision_loss(
+    logits: torch.Tensor, collided: torch.Tensor, pos_weight: float | None = None
+) -> torch.Tensor:
+    """Binary cross-entropy of collision logits, mean over the batch.
+
+    Args:
+        logits: (B,) float from :class:`CollisionHead`.
+        collided: (B,) bool or float in {0, 1}: whether the step reported a collision.
+        pos_weight: factor on the loss of colliding steps (class imbalance); None means 1.
+
+    Returns:
+        Scalar float.
+    """
+    weight = None
+    if pos_weight is not None:
+        weight = torch.tensor(pos_weight, dtype=logits.dtype, device=logits.device)
+    return F.binary_cross_entropy_with_logits(logits, collided.to(logits.dtype), pos_weight=weight)
