@@ -147,9 +147,6 @@ def _train_config(argv: list[str]):
     )
 
 
-SHIPPED_POLICIES = {"base": "base.pt"}
-
-
 @dataclass(frozen=True)
 class EvalConfig:
     """Reproduce the paper's Table 1 for a joint policy on held-out tasks."""
@@ -165,22 +162,11 @@ class EvalConfig:
     """Output stem: writes OUT.json and OUT.md (default: runs/eval/table1_<policy>)."""
 
 
-def resolve_policy_path(name: str) -> Path:
-    """A shipped policy's file, or `name` as a path."""
-    if name in SHIPPED_POLICIES:
-        from importlib.resources import files
-
-        return Path(str(files("clamgen") / "checkpoints" / SHIPPED_POLICIES[name]))
-    return Path(name)
-
-
 def evaluate_table(config: EvalConfig) -> list:
     """Evaluate a policy on held-out tasks and print the paper's Table 1 beside ours."""
-    from clamgen.baselines import IKInterpolationPolicy
     from clamgen.experiments.checkpoint import CheckpointError
-    from clamgen.experiments.evaluate import SACPolicy
+    from clamgen.experiments.policies import load_policy, policy_label
     from clamgen.experiments.tables import table1, table1_markdown, write_table1
-    from clamgen.experiments.train import load_policy_agent
     from clamgen.tasks.reach import validate_speed
 
     if config.num_tasks < 1:
@@ -189,17 +175,11 @@ def evaluate_table(config: EvalConfig) -> list:
         speeds = [validate_speed(s if s == "variable" else float(s)) for s in config.speeds]
     except ValueError as error:
         raise SystemExit(f"bad --speeds: {error}") from error
-    if config.policy == "ik":
-        policy, source = IKInterpolationPolicy(), "ik_interpolation"
-    else:
-        path = resolve_policy_path(config.policy)
-        try:
-            agent, _ = load_policy_agent(path)
-        except CheckpointError as error:
-            raise SystemExit(str(error)) from error
-        policy, source = SACPolicy(agent), str(path)
-    name = Path(config.policy).stem if config.policy not in ("ik", "base") else config.policy
-    out = config.out or Path("runs/eval") / f"table1_{name}"
+    try:
+        policy, source = load_policy(config.policy)
+    except CheckpointError as error:
+        raise SystemExit(str(error)) from error
+    out = config.out or Path("runs/eval") / f"table1_{policy_label(config.policy)}"
     print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")
     rows = table1(
         policy,
@@ -223,11 +203,35 @@ def evaluate_table(config: EvalConfig) -> list:
     return rows
 
 
+def render(config) -> dict:
+    """Render rollouts of a policy (learned, IK interpolation or RRT) to MP4 and GIF."""
+    from clamgen.experiments.checkpoint import CheckpointError
+    from clamgen.experiments.policies import load_policy, policy_label
+    from clamgen.experiments.video import render_rollouts
+
+    try:
+        policy, _ = load_policy(config.policy)
+        summary = render_rollouts(config, policy, policy_label(config.policy))
+    except (CheckpointError, ValueError) as error:
+        raise SystemExit(str(error)) from error
+    for episode in summary["episodes"]:
+        print(episode)
+    print(f"wrote {summary['mp4']} and {summary['gif']}")
+    return summary
+
+
+def _render_config(argv: list[str]):
+    from clamgen.experiments.video import RenderConfig
+
+    return tyro.cli(RenderConfig, args=argv, prog="clamgen render")
+
+
 # Subcommand name -> (config builder from argv, handler). Each handler takes its config.
 COMMANDS: dict[str, tuple[Callable, Callable]] = {
     "demo": (lambda argv: tyro.cli(DemoConfig, args=argv, prog="clamgen demo"), demo),
     "train": (_train_config, train),
     "eval": (lambda argv: tyro.cli(EvalConfig, args=argv, prog="clamgen eval"), evaluate_table),
+    "render": (_render_config, render),
 }
 
 

@@ -37,9 +37,9 @@ def test_ik_baseline_against_itself_gives_ratio_one(tmp_path):
 
 
 def test_eval_command_on_a_trained_policy_file(tmp_path):
-    from clamgen.experiments.train import POLICY_NAME, Trainer
-
     from test_train import tiny_config
+
+    from clamgen.experiments.train import POLICY_NAME, Trainer
 
     config = tiny_config(tmp_path / "run", total=80)
     Trainer(config).run(show_progress=False)

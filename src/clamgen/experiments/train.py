@@ -165,8 +165,7 @@ class Trainer:
                 if self.stop_requested:
                     raise KeyboardInterrupt
                 steps_before = self.progress.env_steps
-                self._collect_step()
-                train_metrics = self._update() or train_metrics
+                train_metrics = self.step() or train_metrics
                 self.progress.wall_time_s = time.perf_counter() - start
                 bar.update(self.progress.env_steps - steps_before)
                 if self._crossed(steps_before, loop.log_every_steps):
@@ -217,6 +216,12 @@ class Trainer:
         return target is not None and metrics["eval/success_rate"] >= target
 
     # ------------------------------------------------------------------- pieces
+    def step(self) -> dict[str, float] | None:
+        """One iteration: a step in every env, then the updates it pays for (their metrics,
+        None before learning starts). Call `start_or_resume()` first."""
+        self._collect_step()
+        return self._update()
+
     def _collect_step(self) -> None:
         """One step in every env; finished episodes go to the buffer."""
         loop = self.config.loop

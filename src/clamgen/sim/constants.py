@@ -49,4 +49,4 @@ CAMERA_FAR_M = 10.0
 DEPTH_RANGE_M = (0.3, 2.5)
 
 # The outside view used for videos and pictures (not a policy input).
-OVERVIEW_CAMERA = ("overview", (1.7, -1.5, 1.2), (0.35, 0.0, 0.2), 45.0)
+OVERVIEW_CAMERA = ("overview", (1.3, -1.1, 0.9), (0.4, 0.0, 0.15), 45.0)

@@ -72,6 +72,8 @@ def uint8_to_depth(depth_u8: np.ndarray, depth_range_m=C.DEPTH_RANGE_M) -> np.nd
 # inputs: no multisampling and coarser capsules make a software-GL frame ~6x cheaper, and at
 # 128x128 the difference is a pixel at most. "pretty" is MuJoCo's default, for videos.
 QUALITY_PRESETS = {"fast": (0, 12, 6), "pretty": (4, 28, 16)}
+MARKER_RADIUS_M = 0.006
+MARKER_RGBA = np.array([1.0, 0.85, 0.1, 1.0], np.float32)
 
 
 class MultiViewRenderer:
@@ -109,7 +111,7 @@ class MultiViewRenderer:
         self.num_views = len(self.camera_ids)
         self._context: mujoco.GLContext | None = None
         self._mjr: mujoco.MjrContext | None = None
-        self._scene = mujoco.MjvScene(model, maxgeom=200)
+        self._scene = mujoco.MjvScene(model, maxgeom=400)
         self._option = mujoco.MjvOption()
         # No sites, joints or frames in the images: only what a real camera would see.
         self._option.sitegroup[:] = 0
@@ -158,8 +160,15 @@ class MultiViewRenderer:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._mjr)
         self._mjr.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
 
-    def render(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+    def render(
+        self, data: mujoco.MjData, markers: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Draw every view of `data` (its frames must be current, e.g. after mj_kinematics).
+
+        Args:
+            data: the simulator data to draw.
+            markers: optional (N, 3) world points drawn as small yellow spheres (e.g. the tip's
+                path in videos); never used for policy observations.
 
         Returns:
             rgb: (V, H, W, 3) uint8.
@@ -178,6 +187,8 @@ class MultiViewRenderer:
                 mujoco.mjtCatBit.mjCAT_ALL,
                 self._scene,
             )
+            if markers is not None:
+                self._add_markers(markers)
             mujoco.mjr_render(rect, self._scene, self._mjr)
         mujoco.mjr_readPixels(self._rgb, self._depth, self._full, self._mjr)
         near, far = self._near, self._far
@@ -189,6 +200,21 @@ class MultiViewRenderer:
             np.ascontiguousarray(rgb.transpose(1, 0, 2, 3)),
             np.ascontiguousarray(depth.transpose(1, 0, 2)),
         )
+
+    def _add_markers(self, points: np.ndarray) -> None:
+        scene = self._scene
+        identity = np.eye(3).ravel()
+        size = np.array([MARKER_RADIUS_M, 0.0, 0.0])
+        for point in np.asarray(points, np.float64)[-(scene.maxgeom - scene.ngeom) :]:
+            mujoco.mjv_initGeom(
+                scene.geoms[scene.ngeom],
+                mujoco.mjtGeom.mjGEOM_SPHERE,
+                size,
+                point,
+                identity,
+                MARKER_RGBA,
+            )
+            scene.ngeom += 1
 
     def close(self) -> None:
         """Free the GL resources (safe to call twice)."""

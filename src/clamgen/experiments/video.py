@@ -1,0 +1,193 @@
+"""`clamgen render`: MP4 and GIF rollouts of any policy, for people to watch.
+
+Each frame: the outside view (with the tip's path drawn as yellow dots) beside the policy's own
+camera views, and a caption with the policy, episode, step and outcome. A step that collided
+gets a red border; the episode's last frames say SUCCESS or FAILURE.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+from PIL import Image, ImageDraw
+from tqdm import tqdm
+
+from clamgen.envs import ENV_IDS, ReachEnv
+from clamgen.sim import constants as C
+from clamgen.sim.render import MultiViewRenderer
+
+OVERVIEW_SIZE = (480, 640)  # height, width
+HOLD_FINAL_FRAMES = 15  # 0.75 s at 20 fps on the outcome
+GREEN, RED, WHITE = (40, 200, 60), (230, 40, 40), (255, 255, 255)
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Render rollouts of a policy to MP4 and GIF."""
+
+    policy: str = "base"
+    """`base` (shipped joint policy), a policy file, `ik` (IK interpolation) or `rrt`."""
+    env_id: str = ENV_IDS[1]
+    """`CLAMGen/Reach-v0` or `CLAMGen/ReachObstacles-v0`."""
+    num_episodes: int = 3
+    """Episodes, one after the other in the same video."""
+    seed: int = 1_000_000_000
+    """Seed of the first episode (held-out evaluation seeds by default)."""
+    target_speed: str = "0"
+    """Target speed in m/s, or `variable`."""
+    num_views: int = 3
+    """Policy camera views shown beside the outside view (0 to 4)."""
+    out: Path = Path("runs/videos/rollout")
+    """Output stem: writes OUT.mp4, OUT.gif and OUT.json (what happened in each episode)."""
+    fps: int = 20
+    """Frames per second (the control rate is 20 Hz: real time)."""
+    gif_scale: float = 0.5
+    """Scale of the GIF frames relative to the MP4's (GIFs get large)."""
+
+
+def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
+    image = Image.fromarray(frame)
+    draw = ImageDraw.Draw(image)
+    y = 8
+    for text, color in lines:
+        draw.rectangle([6, y - 2, 10 + 7 * len(text), y + 13], fill=(0, 0, 0))
+        draw.text((9, y), text, fill=color)
+        y += 18
+    return np.asarray(image)
+
+
+def _border(frame: np.ndarray, color, width: int = 6) -> np.ndarray:
+    frame = frame.copy()
+    frame[:width], frame[-width:], frame[:, :width], frame[:, -width:] = color, color, color, color
+    return frame
+
+
+class RolloutRenderer:
+    """Composes video frames of one env: outside view + policy views + caption."""
+
+    def __init__(self, env: ReachEnv, num_views: int) -> None:
+        scene = env.scene
+        self.scene = scene
+        self.overview = MultiViewRenderer(
+            scene.model, [scene.overview_camera_id], *OVERVIEW_SIZE, quality="pretty"
+        )
+        self.num_views = num_views
+        side = OVERVIEW_SIZE[0] // max(num_views, 1)
+        self.views = (
+            MultiViewRenderer(scene.model, scene.camera_ids[:num_views], side, side, "pretty")
+            if num_views
+            else None
+        )
+
+    def frame(self, tip_path: np.ndarray, lines, border=None) -> np.ndarray:
+        data = self.scene.data
+        outside = self.overview.render(data, markers=tip_path)[0][0]
+        outside = _caption(outside, lines)
+        if border is not None:
+            outside = _border(outside, border)
+        if self.views is None:
+            return outside
+        views = self.views.render(data)[0]
+        column = np.concatenate(list(views), axis=0)
+        pad = OVERVIEW_SIZE[0] - column.shape[0]
+        column = np.pad(column, ((0, pad), (0, 0), (0, 0)))
+        return np.concatenate([outside, column], axis=1)
+
+    def close(self) -> None:
+        self.overview.close()
+        if self.views is not None:
+            self.views.close()
+
+
+def render_rollouts(config: RenderConfig, policy, label: str) -> dict:
+    """Roll out `policy` and write the video files; returns the episode summary."""
+    from clamgen.tasks.reach import validate_speed
+
+    if config.env_id not in ENV_IDS:
+        raise ValueError(f"env_id must be one of {ENV_IDS}, got {config.env_id!r}")
+    if not 0 <= config.num_views <= C.NUM_CAMERAS:
+        raise ValueError(f"num_views must be in 0..{C.NUM_CAMERAS}")
+    if config.num_episodes < 1 or config.fps < 1:
+        raise ValueError("num_episodes and fps must be >= 1")
+    speed = validate_speed(
+        config.target_speed if config.target_speed == "variable" else float(config.target_speed)
+    )
+    num_obstacles = 2 if config.env_id == ENV_IDS[1] else 0
+    env = ReachEnv(num_obstacles=num_obstacles, target_speed=speed)
+    renderer = RolloutRenderer(env, config.num_views)
+    config.out.parent.mkdir(parents=True, exist_ok=True)
+    mp4_path, gif_path = config.out.with_suffix(".mp4"), config.out.with_suffix(".gif")
+    writer = imageio.get_writer(mp4_path, fps=config.fps, macro_block_size=8)
+    gif_frames, episodes = [], []
+    bar = tqdm(total=config.num_episodes, unit="episode", desc="rendering")
+    for i in range(config.num_episodes):
+        seed = config.seed + i
+        obs, _ = env.reset(seed=seed)
+        policy.reset(env)
+        tips = [obs["achieved_goal"].copy()]
+        collided, reached, steps, done, frame = False, False, 0, False, None
+        while not done:
+            status = "COLLISION" if collided else "running"
+            lines = [
+                (f"{label}  episode {i + 1}/{config.num_episodes}  step {steps}", WHITE),
+                (status, RED if collided else WHITE),
+            ]
+            frame = renderer.frame(np.array(tips), lines)
+            writer.append_data(frame)
+            if steps % 2 == 0:
+                gif_frames.append(frame)
+            obs, _, terminated, truncated, info = env.step(policy.act(obs))
+            tips.append(obs["achieved_goal"].copy())
+            step_collided = bool(info["collision"])
+            collided |= step_collided
+            reached |= bool(info["is_success"])
+            steps += 1
+            done = terminated or truncated
+            if step_collided:
+                writer.append_data(renderer.frame(np.array(tips), lines, border=RED))
+        success = reached and not collided
+        outcome = ("SUCCESS" if success else "FAILURE", GREEN if success else RED)
+        lines = [(f"{label}  episode {i + 1}/{config.num_episodes}  step {steps}", WHITE), outcome]
+        final = renderer.frame(np.array(tips), lines, border=outcome[1])
+        for _ in range(HOLD_FINAL_FRAMES):
+            writer.append_data(final)
+        gif_frames += [final] * (HOLD_FINAL_FRAMES // 2)
+        episodes.append(
+            {
+                "seed": seed,
+                "success": success,
+                "reached": reached,
+                "collided": collided,
+                "steps": steps,
+            }
+        )
+        bar.update(1)
+        bar.set_postfix(success=f"{np.mean([e['success'] for e in episodes]):.2f}")
+    bar.close()
+    writer.close()
+    scaled = [_scale(f, config.gif_scale) for f in gif_frames]
+    imageio.mimsave(gif_path, scaled, duration=2 / config.fps, loop=0)
+    renderer.close()
+    env.close()
+    summary = {
+        "policy": label,
+        "env_id": config.env_id,
+        "target_speed": speed,
+        "episodes": episodes,
+        "mp4": str(mp4_path),
+        "gif": str(gif_path),
+    }
+    config.out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _scale(frame: np.ndarray, scale: float) -> np.ndarray:
+    if scale == 1.0:
+        return frame
+    height, width = frame.shape[:2]
+    size = (max(1, round(width * scale)), max(1, round(height * scale)))
+    return np.asarray(Image.fromarray(frame).resize(size, Image.BILINEAR))
