@@ -140,7 +140,7 @@ def main() -> None:
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)
     print("CLAMGen SAC + HER + reversible HER:")
     ours = run_ours(args)
     print("Stable-Baselines3 SAC + HerReplayBuffer:")

@@ -149,8 +149,10 @@ def _train_config(argv: list[str]):
 
 @dataclass(frozen=True)
 class EvalConfig:
-    """Reproduce the paper's Table 1 for a joint policy on held-out tasks."""
+    """Reproduce a row set of the paper's Table 1 (reaching) or Table 2 (obstacles)."""
 
+    table: int = 1
+    """1: static and moving targets, no obstacles; 2: static targets past two obstacles."""
     policy: str = "base"
     """`base` (the joint policy shipped with the package), a policy file written by
     `clamgen train` (`RUN_DIR/policy.pt`), or `ik` (the IK-interpolation baseline itself)."""
@@ -159,11 +161,22 @@ class EvalConfig:
     speeds: tuple[str, ...] = ("0", "0.05", "0.1", "0.2", "variable")
     """Target speeds in m/s, or `variable`, one table row each."""
     out: Path | None = None
-    """Output stem: writes OUT.json and OUT.md (default: runs/eval/table1_<policy>)."""
+    """Output stem: writes OUT.json and OUT.md (default: runs/eval/table<N>_<policy>)."""
+    name: str | None = None
+    """Table 2 row name (default: from the policy)."""
+
+
+TABLE2_ROW_NAMES = {
+    "rrt": "RRT with full model",
+    "ik": "IK interpolation (no obstacle model)",
+    "base": "base joint policy alone (no vision)",
+}
 
 
 def evaluate_table(config: EvalConfig) -> list:
-    """Evaluate a policy on held-out tasks and print the paper's Table 1 beside ours."""
+    """Evaluate a policy on held-out tasks and print the paper's table beside ours."""
+    if config.table not in (1, 2):
+        raise SystemExit(f"--table must be 1 or 2, got {config.table}")
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.policies import load_policy, policy_label
     from clamgen.experiments.tables import table1, table1_markdown, write_table1
@@ -179,7 +192,10 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source = load_policy(config.policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
-    out = config.out or Path("runs/eval") / f"table1_{policy_label(config.policy)}"
+    label = policy_label(config.policy)
+    out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
+    if config.table == 2:
+        return [_evaluate_table2(config, policy, source, label, out)]
     print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")
     rows = table1(
         policy,
@@ -224,6 +240,26 @@ def _render_config(argv: list[str]):
     from clamgen.experiments.video import RenderConfig
 
     return tyro.cli(RenderConfig, args=argv, prog="clamgen render")
+
+
+def _evaluate_table2(config: EvalConfig, policy, source: str, label: str, out: Path):
+    from clamgen.experiments.tables import table2_markdown, table2_row
+
+    name = config.name or TABLE2_ROW_NAMES.get(config.policy, label)
+    print(f"evaluating {source} on {config.num_tasks} held-out obstacle tasks ...")
+    row = table2_row(name, policy, config.num_tasks)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "policy": source,
+        "num_tasks": config.num_tasks,
+        "command": "clamgen eval " + " ".join(sys.argv[2:]),
+    }
+    out.with_suffix(".json").write_text(json.dumps({**meta, "rows": [row.__dict__]}, indent=2))
+    markdown = table2_markdown([row])
+    out.with_suffix(".md").write_text(markdown + "\n")
+    print(markdown)
+    print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
+    return row
 
 
 # Subcommand name -> (config builder from argv, handler). Each handler takes its config.

@@ -34,6 +34,7 @@ def random_batch(rng: np.random.Generator, size: int = 16, obs_dim: int = 4) -> 
         reward=np.where(rng.random(size) < 0.2, 0.0, -0.01).astype(np.float32),
         next_obs=obs(),
         done=(rng.random(size) < 0.2).astype(np.float32),
+        collision=np.zeros(size, np.float32),
     )
 
 

@@ -127,4 +127,92 @@ def write_table1(rows: list[SpeedRow], out: Path, meta: dict[str, Any]) -> None:
     out.with_suffix(".md").write_text(table1_markdown(rows, observation) + "\n")
 
 
-__all__ = ["TABLE1_SPEEDS", "SpeedRow", "table1", "table1_markdown", "write_table1"]
+# ------------------------------------------------------------------------- Table 2
+# The paper's Table 2 (static targets, two obstacles): success rate per row.
+PAPER_TABLE2 = {
+    "CLAMGen, 3 RGBD views": 0.81,
+    "CLAMGen, 2 RGBD views": 0.76,
+    "CLAMGen, 1 RGBD view": 0.475,
+    "no residual (2 views)": 0.30,
+    "no HER (2 views)": 0.625,
+    "no view dropout (2 views)": 0.565,
+    "no collision loss (2 views)": 0.55,
+    "vanilla CURL + HER (3 views)": 0.24,
+    "RRT with full model": 1.0,
+}
+
+
+@dataclass
+class ObstacleRow:
+    name: str
+    num_tasks: int
+    success_rate: float
+    collision_rate: float
+    reach_rate: float
+    mean_tip_path_m: float
+    median_act_ms: float
+    plan_time_median_s: float | None = None
+    plan_time_p95_s: float | None = None
+
+
+class _PlanTimeRecorder:
+    """Wraps a planning policy to collect its per-episode planning time."""
+
+    def __init__(self, policy) -> None:
+        self.policy = policy
+        self.times: list[float] = []
+
+    def reset(self, env=None) -> None:
+        self.policy.reset(env)
+        if getattr(self.policy, "last_plan_time_s", None) is not None:
+            self.times.append(self.policy.last_plan_time_s)
+
+    def act(self, obs):
+        return self.policy.act(obs)
+
+
+def table2_row(
+    name: str, policy: Policy, num_tasks: int = 200, env_kwargs: dict[str, Any] | None = None
+) -> ObstacleRow:
+    """One Table 2 row: `policy` on `num_tasks` held-out obstacle tasks (static targets).
+
+    For a planner (anything with `last_plan_time_s`) the per-task planning time is reported;
+    it is spent in `reset`, before the first action, and is not part of the act time.
+    """
+    env = ReachEnv(num_obstacles=2, **(env_kwargs or {}))
+    recorder = _PlanTimeRecorder(policy)
+    records = evaluate(env, recorder, EVAL_SEED_BASE + np.arange(num_tasks))
+    env.close()
+    times = np.array(recorder.times) if recorder.times else None
+    return ObstacleRow(
+        name=name,
+        num_tasks=num_tasks,
+        success_rate=float(np.mean([r.success for r in records])),
+        collision_rate=float(np.mean([r.collided for r in records])),
+        reach_rate=float(np.mean([r.reached for r in records])),
+        mean_tip_path_m=float(np.mean([r.tip_path_m for r in records])),
+        median_act_ms=float(np.median(np.concatenate([r.act_times_s for r in records])) * 1e3),
+        plan_time_median_s=None if times is None else float(np.median(times)),
+        plan_time_p95_s=None if times is None else float(np.percentile(times, 95)),
+    )
+
+
+def table2_markdown(rows: list[ObstacleRow]) -> str:
+    lines = [
+        "| row | success | paper | collision rate | reached | tip path (m) "
+        "| act (ms, median) | planning (s, median / p95) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        paper = PAPER_TABLE2.get(row.name)
+        planning = (
+            "-"
+            if row.plan_time_median_s is None
+            else f"{row.plan_time_median_s:.3f} / {row.plan_time_p95_s:.3f}"
+        )
+        lines.append(
+            f"| {row.name} | {row.success_rate:.3f} | {'-' if paper is None else paper} "
+            f"| {row.collision_rate:.3f} | {row.reach_rate:.3f} | {row.mean_tip_path_m:.3f} "
+            f"| {row.median_act_ms:.4f} | {planning} |"
+        )
+    return "\n".join(lines)

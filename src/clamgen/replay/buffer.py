@@ -280,7 +280,12 @@ class ReplayBuffer:
             self.compute_terminated,
         )
         return Batch(
-            obs=obs, action=self._action[slots], reward=reward, next_obs=next_obs, done=done
+            obs=obs,
+            action=self._action[slots],
+            reward=reward,
+            next_obs=next_obs,
+            done=done,
+            collision=self._collision[slots].astype(np.float32),
         )
 
     def _sample_transition_slots(self, batch_size: int, rng: np.random.Generator) -> np.ndarray:

@@ -40,6 +40,9 @@ class Batch(TypedDict):
     goal was relabelled."""
     done: np.ndarray
     """Terminal flag (success), not time-limit truncation, (N,) float32 in {0, 1}."""
+    collision: np.ndarray
+    """Whether the transition reported a collision, (N,) float32 in {0, 1} (the target of the
+    stage-2 collision-prediction loss)."""
 
 
 @dataclass(frozen=True)

@@ -131,7 +131,12 @@ def transitions(
         compute_terminated,
     )
     return Batch(
-        obs=obs, action=episode.actions[steps], reward=reward, next_obs=next_obs, done=done
+        obs=obs,
+        action=episode.actions[steps],
+        reward=reward,
+        next_obs=next_obs,
+        done=done,
+        collision=episode.collisions[steps].astype(np.float32),
     )
 
 

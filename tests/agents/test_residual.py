@@ -1,0 +1,159 @@
+"""Stage-2 residual agent: starts exactly at the base, learns, and every switch does its job."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from clamgen.agents.aux_losses import AuxLossConfig
+from clamgen.agents.encoders import EncoderConfig
+from clamgen.agents.residual import ResidualAgent, ResidualConfig
+from clamgen.agents.sac import SACAgent, SACConfig
+
+torch.set_num_threads(1)
+VIEWS, CROP, PAD = 2, 32, 4
+
+
+def base_agent() -> SACAgent:
+    agent = SACAgent(SACConfig(hidden_sizes=(32, 32), seed=1), obs_dim=9, action_dim=6)
+    with torch.no_grad():  # a base with non-trivial normalisation and outputs
+        agent.normalizer.mean.copy_(torch.linspace(-0.5, 0.5, 9))
+    return agent
+
+
+def config(**kwargs) -> ResidualConfig:
+    encoder = EncoderConfig(
+        image_size=CROP,
+        num_views=VIEWS,
+        num_channels=8,
+        strides=(2, 2, 1, 1),
+        hidden_dim=32,
+        feature_dim=16,
+        low_dim_size=16,
+    )
+    return dataclasses.replace(
+        ResidualConfig(
+            encoder=encoder,
+            crop_padding=PAD,
+            hidden_sizes=(32, 32),
+            batch_size=8,
+            aux=AuxLossConfig(collision_hidden_sizes=(16,)),
+        ),
+        **kwargs,
+    )
+
+
+def batch(size=8, seed=0, obstacles=False):
+    rng = np.random.default_rng(seed)
+
+    def obs():
+        data = {
+            "observation": rng.uniform(-2, 2, (size, 6)).astype(np.float32),
+            "desired_goal": rng.uniform(0, 0.5, (size, 3)).astype(np.float32),
+            "achieved_goal": rng.uniform(0, 0.5, (size, 3)).astype(np.float32),
+            "images": rng.integers(
+                0, 256, (size, VIEWS, 4, CROP + 2 * PAD, CROP + 2 * PAD), dtype=np.uint8
+            ),
+        }
+        if obstacles:
+            data["obstacles"] = rng.uniform(-0.5, 0.5, (size, 2, 8)).astype(np.float32)
+        return data
+
+    return {
+        "obs": obs(),
+        "action": rng.uniform(-1, 1, (size, 6)).astype(np.float32),
+        "reward": np.full(size, -0.01, np.float32),
+        "next_obs": obs(),
+        "done": np.zeros(size, np.float32),
+        "collision": (rng.random(size) < 0.5).astype(np.float32),
+    }
+
+
+def test_residual_starts_exactly_at_the_base_action_and_base_q():
+    base = base_agent()
+    agent = ResidualAgent(config(), base)
+    data = batch()["obs"]
+    np.testing.assert_allclose(
+        agent.act(data, deterministic=True), base.act(data, deterministic=True), atol=1e-6
+    )
+    low_dim = agent._low_dim(data)
+    latent, _ = agent.critic.features(agent._visual(data, train=False), low_dim)
+    action = torch.zeros(8, 6)
+    q = agent._q(agent.critic, agent.base_critic, latent, low_dim, action)
+    torch.testing.assert_close(q, base.critic(low_dim, action))
+
+
+def test_update_trains_residual_and_encoder_but_not_the_frozen_base():
+    base = base_agent()
+    agent = ResidualAgent(config(warmup_updates=1), base)
+    frozen = [p.detach().clone() for p in (*base.actor.parameters(), *base.critic.parameters())]
+    encoder_before = [p.detach().clone() for p in agent.critic.encoder.parameters()]
+    for step in range(3):
+        metrics = agent.update(batch(seed=step))
+    for name in (
+        "train/critic_loss",
+        "train/actor_loss",
+        "train/curl_loss",
+        "train/across_view_loss",
+        "train/collision_loss",
+    ):
+        assert np.isfinite(metrics[name])
+    assert metrics["train/warmup"] == 0.0
+    after = [p.detach() for p in (*base.actor.parameters(), *base.critic.parameters())]
+    for a, b in zip(frozen, after, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    changed = [
+        not torch.equal(a, b)
+        for a, b in zip(encoder_before, agent.critic.encoder.parameters(), strict=True)
+    ]
+    assert all(changed)
+
+
+def test_finetune_base_updates_the_base():
+    base = base_agent()
+    agent = ResidualAgent(config(finetune_base=True, warmup_updates=0), base)
+    before = [p.detach().clone() for p in base.actor.parameters()]
+    agent.update(batch())
+    assert any(not torch.equal(a, b) for a, b in zip(before, base.actor.parameters(), strict=True))
+
+
+def test_switches_change_what_they_claim():
+    base = base_agent()
+    metrics = ResidualAgent(
+        config(aux=AuxLossConfig(curl_weight=0, across_view_weight=0, collision_weight=0)), base
+    ).update(batch())
+    assert not {"train/curl_loss", "train/across_view_loss", "train/collision_loss"} & set(metrics)
+    # No residual: no base in the action or in Q, and the actor's mean is not zero-initialised.
+    plain = ResidualAgent(config(residual=False), base_agent())
+    data = batch()["obs"]
+    assert not np.allclose(plain.act(data, True), base.act(data, True), atol=1e-3)
+    assert plain._view_mask(64) is not None
+    assert ResidualAgent(config(view_dropout=0.0), base_agent())._view_mask(64) is None
+    masks = ResidualAgent(config(view_dropout=0.9), base_agent())._view_mask(1000)
+    assert masks.any(1).all()  # never all views dropped
+
+
+def test_privileged_obstacle_residual_uses_poses_not_images():
+    agent = ResidualAgent(config(obs_source="obstacles"), base_agent())
+    data = batch(obstacles=True)
+    metrics = agent.update(data)
+    assert "train/curl_loss" not in metrics and np.isfinite(metrics["train/critic_loss"])
+    assert agent.act(data["obs"], True).shape == (8, 6)
+
+
+def test_state_dict_round_trip_gives_identical_actions(tmp_path):
+    agent = ResidualAgent(config(warmup_updates=0), base_agent())
+    agent.update(batch())
+    torch.save(agent.state_dict(), tmp_path / "agent.pt")
+    other = ResidualAgent(config(warmup_updates=0), base_agent())
+    other.load_state_dict(torch.load(tmp_path / "agent.pt", weights_only=True))
+    data = batch(seed=5)["obs"]
+    np.testing.assert_array_equal(agent.act(data, True), other.act(data, True))
+
+
+def test_bad_config_is_refused():
+    with pytest.raises(ValueError, match="obs_source"):
+        config(obs_source="lidar")
+    with pytest.raises(ValueError, match="view_dropout"):
+        config(view_dropout=1.0)
