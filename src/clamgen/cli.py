@@ -122,11 +122,24 @@ def train(config) -> dict:
     return summary
 
 
-def _train_config(argv: list[str]):
-    """A TrainConfig from `--preset NAME` (default "base") plus command-line overrides."""
-    from clamgen.experiments.config import TrainConfig, load_preset
+def train_residual(config) -> dict:
+    """Train the stage-2 vision residual on the frozen base policy (CLAMGen, Table 2)."""
+    from clamgen.experiments.stage2 import Stage2Trainer
 
-    preset = "base"
+    summary = Stage2Trainer(config).run()
+    print(json.dumps(summary, indent=2))
+    print(f"run directory: {config.run_dir} (policy: {config.run_dir / 'policy.pt'})")
+    return summary
+
+
+def _train_config(argv: list[str], default_preset: str = "base", stage: int = 1):
+    """A config from `--preset NAME` plus command-line overrides."""
+    from clamgen.experiments.config import TrainConfig, load_preset
+    from clamgen.experiments.stage2 import Stage2Config
+
+    cls = TrainConfig if stage == 1 else Stage2Config
+    handler = train if stage == 1 else train_residual
+    preset = default_preset
     if "--preset" in argv:
         index = argv.index("--preset")
         if index + 1 >= len(argv):
@@ -134,15 +147,16 @@ def _train_config(argv: list[str]):
         preset = argv[index + 1]
         argv = argv[:index] + argv[index + 2 :]
     try:
-        default = load_preset(preset)
+        default = load_preset(preset, cls)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(str(error)) from error
+    name = "train" if stage == 1 else "train-residual"
     return tyro.cli(
-        TrainConfig,
+        cls,
         default=default,
         args=argv,
-        prog="clamgen train",
-        description=f"{train.__doc__} Options start from --preset {preset!r}; "
+        prog=f"clamgen {name}",
+        description=f"{handler.__doc__} Options start from --preset {preset!r}; "
         "presets live in clamgen/presets/ (or pass a .toml path).",
     )
 
@@ -266,6 +280,10 @@ def _evaluate_table2(config: EvalConfig, policy, source: str, label: str, out: P
 COMMANDS: dict[str, tuple[Callable, Callable]] = {
     "demo": (lambda argv: tyro.cli(DemoConfig, args=argv, prog="clamgen demo"), demo),
     "train": (_train_config, train),
+    "train-residual": (
+        lambda argv: _train_config(argv, "residual-cpu", stage=2),
+        train_residual,
+    ),
     "eval": (lambda argv: tyro.cli(EvalConfig, args=argv, prog="clamgen eval"), evaluate_table),
     "render": (_render_config, render),
 }

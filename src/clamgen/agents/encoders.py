@@ -73,6 +73,10 @@ class EncoderConfig:
     """Append the view mask (V floats, 1 = kept) to the merged features."""
     rescale_kept_views: bool = False
     """Scale the kept views' features by V / (number kept), like inverted dropout."""
+    cpu_conv_chunk: int | None = 32
+    """On a CPU, run the convs on chunks of this many images: the activations then stay in the
+    caches, which measured 1.5-2.5x faster forward + backward than one call on B * V images
+    (1 thread, 64-84 px). Ignored on other devices; None = one call."""
     low_dim_input: int = 9
     """Size of the low-dimensional input: joint angles (6) + goal (3)."""
     low_dim_size: int = 64
@@ -166,15 +170,21 @@ class MultiViewEncoder(nn.Module):
         if images.dim() != 5 or images.shape[1:] != view_shape:
             raise ValueError(f"expected images (B, *{view_shape}), got {tuple(images.shape)}")
         batch, num_views = images.shape[:2]
-        x = to_unit_float(images)
         if cfg.share_view_weights:
-            # All views in one batch of B * V images through the same convs.
-            features = self.trunks[0](x.flatten(0, 1))
+            # All views as one batch of B * V images through the same convs.
+            features = self._run_trunk(self.trunks[0], images.flatten(0, 1))
             return features.reshape(batch, num_views, -1)
         # One conv stack per view. (A grouped conv does the same in one call, but measured
         # 1.5x slower on CPU than this loop.)
-        per_view = [trunk(x[:, v]).flatten(1) for v, trunk in enumerate(self.trunks)]
+        per_view = [self._run_trunk(trunk, images[:, v]) for v, trunk in enumerate(self.trunks)]
         return torch.stack(per_view, dim=1)
+
+    def _run_trunk(self, trunk: nn.Module, images: torch.Tensor) -> torch.Tensor:
+        """(N, C, H, W) uint8 or float -> (N, F) float32, in cache-sized chunks on a CPU."""
+        chunk = self.config.cpu_conv_chunk
+        if chunk is None or images.device.type != "cpu" or len(images) <= chunk:
+            return trunk(to_unit_float(images)).flatten(1)
+        return torch.cat([trunk(to_unit_float(part)).flatten(1) for part in images.split(chunk)])
 
     def _view_projections(self, view_features: torch.Tensor) -> torch.Tensor:
         """W_v f_v for each view: (B, V, F) -> (B, V, hidden)."""

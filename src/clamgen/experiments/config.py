@@ -44,6 +44,8 @@ class EnvConfig:
     """"joints", "images" or "both" (CLAMGen envs)."""
     collision_penalty: Schedule = field(default_factory=Constant)
     """Collision penalty over training progress (paper: LinearRamp(0.3, 0.9, 0.0, 0.1))."""
+    include_obstacle_state: bool = False
+    """Add the obstacles' true poses to observations (for the privileged residual)."""
 
     def __post_init__(self) -> None:
         if self.num_envs < 1:
@@ -56,6 +58,7 @@ class EnvConfig:
             "num_views": self.num_views,
             "image_size": self.image_size,
             "obs_mode": self.obs_mode,
+            "include_obstacle_state": self.include_obstacle_state,
         }
 
 
@@ -169,8 +172,8 @@ def config_to_json(config: TrainConfig) -> str:
     return json.dumps(to_jsonable(config), indent=2)
 
 
-def config_from_json(text: str) -> TrainConfig:
-    return from_dict(TrainConfig, json.loads(text))
+def config_from_json(text: str, cls: type = TrainConfig) -> Any:
+    return from_dict(cls, json.loads(text))
 
 
 def resolve_preset(name_or_path: str) -> Path:
@@ -185,9 +188,9 @@ def resolve_preset(name_or_path: str) -> Path:
     raise FileNotFoundError(f"no preset {name_or_path!r}; known presets: {known}, or a .toml path")
 
 
-def load_preset(name_or_path: str) -> TrainConfig:
-    """The TrainConfig of a preset file (missing fields keep their defaults)."""
+def load_preset(name_or_path: str, cls: type = TrainConfig) -> Any:
+    """The config (`cls`, e.g. TrainConfig) of a preset file; missing fields keep defaults."""
     path = resolve_preset(name_or_path)
     with path.open("rb") as f:
         data = tomllib.load(f)
-    return from_dict(TrainConfig, data)
+    return from_dict(cls, data)

@@ -112,8 +112,7 @@ class Trainer:
         self.eval_env = make_env(config.env)
         probe = self.envs[0]
         # The loop seed seeds everything, the agent included.
-        agent_config = dataclasses.replace(config.agent, seed=loop.seed)
-        self.agent = SACAgent.from_spaces(agent_config, probe.observation_space, probe.action_space)
+        self.agent = self.make_agent(probe)
         self.buffer = ReplayBuffer(
             config.replay,
             obs_spec_from_space(probe.observation_space),
@@ -125,6 +124,17 @@ class Trainer:
         self.recent_successes: deque[bool] = deque(maxlen=RECENT_EPISODES)
         self.obs: list[dict[str, np.ndarray]] = []
         self.recorders: list[EpisodeRecorder] = []
+
+    def make_agent(self, probe: gym.Env):
+        """The agent to train (stage 2 overrides this)."""
+        agent_config = dataclasses.replace(self.config.agent, seed=self.config.loop.seed)
+        return SACAgent.from_spaces(agent_config, probe.observation_space, probe.action_space)
+
+    def store_episode(self, episode, env: gym.Env) -> None:
+        """Put a finished episode of `env` (before its reset) into the replay buffer; stage 2
+        adds re-rendered hindsight episodes."""
+        del env
+        self.buffer.add_episode(episode)
 
     # ------------------------------------------------------------------------ run
     def start_or_resume(self) -> bool:
@@ -236,7 +246,7 @@ class Trainer:
             self.recorders[i].add(actions[i], obs, info)
             if terminated or truncated:
                 episode = self.recorders[i].episode()
-                self.buffer.add_episode(episode)
+                self.store_episode(episode, env)
                 self.recent_successes.append(not episode.failed)
                 self.progress.episodes += 1
                 obs, _ = env.reset()
@@ -313,7 +323,7 @@ class Trainer:
     def _load_checkpoint(self) -> None:
         path = self.checkpoint_dir / CHECKPOINT_NAME
         payload = ckpt.load_torch(path, ckpt.TRAINING_KIND)
-        saved = config_from_json(payload["config"])
+        saved = config_from_json(payload["config"], type(self.config))
         if _without_budget(saved) != _without_budget(self.config):
             raise ckpt.CheckpointError(
                 f"{path} was written with a different configuration; resume with the run's own "
@@ -340,17 +350,18 @@ class Trainer:
         (self.run_dir / "config.json").write_text(config_to_json(self.config))
         self._apply_curriculum()
 
+    policy_kind = ckpt.POLICY_KIND
+    policy_state_keys = POLICY_STATE_KEYS
+
     def export_policy(self, path: Path) -> None:
-        """A small file with what acting and stage 2 need (no optimiser or replay state)."""
+        """A small file with what acting (and stage 2) need: no optimiser or replay state."""
         state = self.agent.state_dict()
         payload = {
             "format": ckpt.FORMAT,
-            "kind": ckpt.POLICY_KIND,
+            "kind": self.policy_kind,
             "config": config_to_json(self.config),
             "env_steps": self.progress.env_steps,
-            "agent": {
-                k: state[k] for k in ("config", "actor", "critic", "normalizer", "log_alpha")
-            },
+            "agent": {k: state[k] for k in self.policy_state_keys},
         }
         ckpt.save_torch(path, payload)
 

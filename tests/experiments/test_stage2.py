@@ -1,0 +1,118 @@
+"""Stage 2 end to end on tiny budgets: privileged poses and images with re-rendered HER."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_train import tiny_config
+
+from clamgen.agents.aux_losses import AuxLossConfig
+from clamgen.agents.encoders import EncoderConfig
+from clamgen.agents.residual import ResidualConfig
+from clamgen.experiments.config import EnvConfig, LoopConfig, load_preset
+from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer, load_residual_agent
+from clamgen.experiments.train import POLICY_NAME, Trainer
+from clamgen.replay import ReplayConfig
+from clamgen.schedules import LinearRamp
+
+
+@pytest.fixture(scope="module")
+def base_policy(tmp_path_factory):
+    config = tiny_config(tmp_path_factory.mktemp("base") / "run", total=80)
+    Trainer(config).run(show_progress=False)
+    return str(config.run_dir / POLICY_NAME)
+
+
+LOOP = LoopConfig(
+    total_env_steps=160,
+    learning_starts=40,
+    updates_per_step=0.25,
+    eval_every_steps=0,
+    num_eval_episodes=2,
+    checkpoint_every_steps=0,
+    log_every_steps=40,
+    seed=2,
+)
+
+
+def test_privileged_residual_trains_exports_and_loads(tmp_path, base_policy):
+    preset = load_preset("residual-obstacles", Stage2Config)
+    config = dataclasses.replace(
+        preset,
+        run_dir=tmp_path / "run",
+        base_policy=base_policy,
+        env=dataclasses.replace(preset.env, num_envs=2),
+        agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
+        replay=ReplayConfig(capacity=5_000),
+        loop=LOOP,
+    )
+    summary = Stage2Trainer(config).run(show_progress=False)
+    assert 0 <= summary["eval/success_rate"] <= 1
+    agent, loaded = load_residual_agent(config.run_dir / POLICY_NAME)
+    assert loaded == config
+    obs = {
+        "observation": np.zeros(6, np.float32),
+        "desired_goal": np.full(3, 0.4, np.float32),
+        "obstacles": np.zeros((2, 8), np.float32),
+    }
+    assert agent.act(obs, deterministic=True).shape == (6,)
+
+
+def image_config(tmp_path, base_policy, **kwargs) -> Stage2Config:
+    encoder = EncoderConfig(
+        image_size=24,
+        num_views=2,
+        num_channels=8,
+        strides=(2, 2, 1, 1),
+        hidden_dim=32,
+        feature_dim=16,
+        low_dim_size=16,
+    )
+    return Stage2Config(
+        run_dir=tmp_path / "run",
+        base_policy=base_policy,
+        rerender_in_process=True,
+        env=EnvConfig(
+            env_id="CLAMGen/ReachObstacles-v0",
+            num_envs=2,
+            num_views=2,
+            image_size=28,
+            obs_mode="both",
+            collision_penalty=LinearRamp(),
+        ),
+        agent=ResidualConfig(
+            encoder=encoder,
+            crop_padding=2,
+            batch_size=16,
+            hidden_sizes=(32,),
+            aux=AuxLossConfig(collision_hidden_sizes=(16,)),
+            warmup_updates=5,
+        ),
+        replay=ReplayConfig(capacity=5_000, her_ratio=0.0, reversible_her=False),
+        loop=LOOP,
+        **kwargs,
+    )
+
+
+def test_image_residual_with_rerendered_her_trains_and_resumes(tmp_path, base_policy):
+    config = image_config(tmp_path, base_policy)
+    trainer = Stage2Trainer(config)
+    summary = trainer.run(show_progress=False)
+    assert 0 <= summary["eval/success_rate"] <= 1
+    # Failed episodes were relabelled and re-rendered: more episodes stored than played.
+    assert trainer.buffer.num_episodes > trainer.progress.episodes
+    longer = dataclasses.replace(config, loop=dataclasses.replace(LOOP, total_env_steps=200))
+    resumed = Stage2Trainer(longer)
+    assert resumed.start_or_resume() and resumed.progress.env_steps == 160
+    agent, _ = load_residual_agent(config.run_dir / POLICY_NAME)
+    assert agent.config.encoder.image_size == 24
+
+
+def test_stage2_config_refuses_inconsistent_settings(tmp_path, base_policy):
+    config = image_config(tmp_path, base_policy)
+    with pytest.raises(ValueError, match="num_views"):
+        dataclasses.replace(config, env=dataclasses.replace(config.env, num_views=3))
+    with pytest.raises(ValueError, match="crop plus padding"):
+        dataclasses.replace(config, env=dataclasses.replace(config.env, image_size=32))
+    with pytest.raises(ValueError, match="sample-time HER"):
+        dataclasses.replace(config, replay=ReplayConfig(her_ratio=0.8))
