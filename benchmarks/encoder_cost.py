@@ -3,7 +3,7 @@ SAC+CURL update it implies, for a grid of views / image size / strides / batch /
 
     python benchmarks/encoder_cost.py [--sizes 84 64] [--strides 2,1,1,1 2,2,1,1]
         [--batches 128 256] [--views 3] [--channels 32] [--repeats 2] [--threads 2] [--bf16]
-        [--no-csv]
+        [--conv-chunk 32] [--no-csv]
 
 The reference is the paper-like encoder (first size, first strides, shared weights) at the same
 batch, measured in the same run; "speedup" is its forward + backward time over each row's.
@@ -13,6 +13,9 @@ Update estimates (the actor / critic MLPs cost little next to the convs and are 
   (target critic on s'; actor on detached conv features; momentum key encoder).
 - lean: 1 forward + backward (critic, CURL, across-view and collision losses summed on one
   online pass, the actor reusing its detached features) and 2 forward (target on s', key).
+
+On a machine shared with another training job use --threads 1: two OpenMP threads competing
+with the job for 2 cores measured 2-5x slower than one thread (64 px, batch 128).
 
 Writes results/benchmarks/encoder_cost.csv unless --no-csv.
 """
@@ -98,6 +101,9 @@ def main() -> None:
     parser.add_argument("--shared", choices=["both", "yes", "no"], default="both")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs per cell (best of)")
     parser.add_argument("--bf16", action="store_true", help="autocast to bfloat16 (CPU)")
+    parser.add_argument(
+        "--conv-chunk", type=int, default=32, help="EncoderConfig.cpu_conv_chunk; 0 = one call"
+    )
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--no-csv", action="store_true")
     args = parser.parse_args()
@@ -108,6 +114,7 @@ def main() -> None:
     print(
         f"torch {torch.__version__}, {args.threads} threads, {os.cpu_count()} CPUs, "
         f"{'bfloat16 autocast' if args.bf16 else 'float32'}, channels {args.channels}, "
+        f"conv chunk {args.conv_chunk or 'none'}, "
         f"load average {os.getloadavg()[0]:.2f} at start"
     )
 
@@ -130,6 +137,7 @@ def main() -> None:
                         num_channels=args.channels,
                         strides=strides,
                         share_view_weights=shared,
+                        cpu_conv_chunk=args.conv_chunk or None,
                     )
                     cost = time_encoder(config, batch, args.repeats, args.bf16)
                     if reference_ms is None:
@@ -156,6 +164,7 @@ def main() -> None:
                         "lean_updates_in_2h": int(BUDGET_S / (lean_ms / 1e3)),
                         "threads": args.threads,
                         "precision": "bf16" if args.bf16 else "fp32",
+                        "conv_chunk": args.conv_chunk,
                     }
                     rows.append(row)
                     print(

@@ -86,6 +86,15 @@ def test_uint8_is_scaled_to_unit_range() -> None:
 
 
 @pytest.mark.parametrize("shared", [True, False])
+def test_chunked_convs_match_one_call(shared: bool) -> None:
+    config = dataclasses.replace(TINY, share_view_weights=shared, cpu_conv_chunk=None)
+    one_call = make_encoder(config)
+    chunked = make_encoder(dataclasses.replace(config, cpu_conv_chunk=2))
+    images = random_images(TINY, 5)
+    torch.testing.assert_close(chunked.conv_trunk(images), one_call.conv_trunk(images))
+
+
+@pytest.mark.parametrize("shared", [True, False])
 def test_gradients_reach_every_parameter(shared: bool) -> None:
     config = dataclasses.replace(TINY, share_view_weights=shared)
     encoder = make_encoder(config)

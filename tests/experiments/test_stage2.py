@@ -24,7 +24,7 @@ def base_policy(tmp_path_factory):
 
 
 LOOP = LoopConfig(
-    total_env_steps=160,
+    total_env_steps=240,
     learning_starts=40,
     updates_per_step=0.25,
     eval_every_steps=0,
@@ -101,9 +101,9 @@ def test_image_residual_with_rerendered_her_trains_and_resumes(tmp_path, base_po
     assert 0 <= summary["eval/success_rate"] <= 1
     # Failed episodes were relabelled and re-rendered: more episodes stored than played.
     assert trainer.buffer.num_episodes > trainer.progress.episodes
-    longer = dataclasses.replace(config, loop=dataclasses.replace(LOOP, total_env_steps=200))
+    longer = dataclasses.replace(config, loop=dataclasses.replace(LOOP, total_env_steps=280))
     resumed = Stage2Trainer(longer)
-    assert resumed.start_or_resume() and resumed.progress.env_steps == 160
+    assert resumed.start_or_resume() and resumed.progress.env_steps == 240
     agent, _ = load_residual_agent(config.run_dir / POLICY_NAME)
     assert agent.config.encoder.image_size == 24
 

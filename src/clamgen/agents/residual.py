@@ -155,7 +155,10 @@ class ResidualCritic(nn.Module):
 
     def features(self, visual_in: torch.Tensor, low_dim_in: torch.Tensor, view_mask=None):
         """(latent, visual encoding): the fused latent (B, Dv + Dl) and the visual part."""
-        visual = self.encoder(visual_in, view_mask)
+        return self.fuse(self.encoder(visual_in, view_mask), low_dim_in)
+
+    def fuse(self, visual: torch.Tensor, low_dim_in: torch.Tensor):
+        """(latent, visual) from an already computed visual encoding."""
         return torch.cat([visual, self.low_dim(low_dim_in)], dim=-1), visual
 
     def forward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -186,6 +189,23 @@ class ResidualActor(nn.Module):
 
     def forward(self, visual: torch.Tensor, low_dim_in: torch.Tensor):
         return self.policy(torch.cat([visual, self.low_dim(low_dim_in)], dim=-1))
+
+
+@dataclass
+class _TrainInputs:
+    """One training batch as tensors (B = batch size, A = action size)."""
+
+    low_dim: torch.Tensor  # (B, 9) normalised joints + goal
+    next_low_dim: torch.Tensor
+    visual_in: torch.Tensor  # (B, V, 4, crop, crop) uint8, or (B, N, 8) obstacle poses
+    next_visual_in: torch.Tensor
+    key_in: torch.Tensor | None  # another crop of visual_in's images (CURL's key)
+    action: torch.Tensor  # (B, A)
+    reward: torch.Tensor  # (B,)
+    done: torch.Tensor  # (B,)
+    collided: torch.Tensor  # (B,)
+    view_mask: torch.Tensor | None  # (B, V) bool
+    view_features: torch.Tensor | None = None  # (B, V, F) conv features of visual_in
 
 
 class ResidualAgent:
@@ -334,36 +354,17 @@ class ResidualAgent:
     def update(self, batch: Batch) -> dict[str, float]:
         """One step of: critic (+ encoder), auxiliary losses, actor and temperature, targets."""
         cfg = self.config
-        batch_size = len(batch["action"])
-        low_dim = self._low_dim(batch["obs"])
-        next_low_dim = self._low_dim(batch["next_obs"])
-        visual_in = self._visual(batch["obs"], train=True)
-        next_visual_in = self._visual(batch["next_obs"], train=True)
-        action = torch.as_tensor(batch["action"], device=self.device)
-        reward = torch.as_tensor(batch["reward"], device=self.device)
-        done = torch.as_tensor(batch["done"], device=self.device)
-        collided = torch.as_tensor(batch["collision"], device=self.device)
-        view_mask = self._view_mask(batch_size)
-
-        # A second, independent random crop: CURL's positive key.
-        key_in = self._visual(batch["obs"], train=True) if cfg.obs_source == "images" else None
-
-        latent, visual = self.critic.features(visual_in, low_dim, view_mask)
-        metrics = self._critic_and_aux_step(
-            latent,
-            visual,
-            visual_in,
-            key_in,
-            low_dim,
-            next_visual_in,
-            next_low_dim,
-            action,
-            reward,
-            done,
-            collided,
-            view_mask,
-        )
-        metrics |= self._actor_and_temperature_step(visual.detach(), latent.detach(), low_dim)
+        x = self._train_inputs(batch)
+        # The convs run once on the query crop: the critic (with view dropout) and the
+        # contrastive terms (all views) merge the same per-view features.
+        if cfg.obs_source == "images":
+            x.view_features = self.critic.encoder.conv_trunk(x.visual_in)
+            visual = self.critic.encoder.merge(x.view_features, x.view_mask)
+        else:
+            visual = self.critic.encoder(x.visual_in)
+        latent, visual = self.critic.fuse(visual, x.low_dim)
+        metrics = self._critic_and_aux_step(latent, x)
+        metrics |= self._actor_and_temperature_step(visual.detach(), latent.detach(), x.low_dim)
         soft_update(self.critic_target, self.critic, cfg.tau)
         momentum_update(self.key_encoder, self.critic.encoder, cfg.aux.encoder_momentum_tau)
         if cfg.finetune_base:
@@ -371,42 +372,48 @@ class ResidualAgent:
         self.num_updates += 1
         return metrics
 
-    def _critic_and_aux_step(
-        self,
-        latent,
-        visual,
-        visual_in,
-        key_in,
-        low_dim,
-        next_visual_in,
-        next_low_dim,
-        action,
-        reward,
-        done,
-        collided,
-        view_mask,
-    ):
+    def _train_inputs(self, batch: Batch) -> _TrainInputs:
+        """Tensors of a batch: normalised low-dim inputs, random crops, view-dropout mask."""
+        device = self.device
+        images = self.config.obs_source == "images"
+        return _TrainInputs(
+            low_dim=self._low_dim(batch["obs"]),
+            next_low_dim=self._low_dim(batch["next_obs"]),
+            visual_in=self._visual(batch["obs"], train=True),
+            next_visual_in=self._visual(batch["next_obs"], train=True),
+            # A second, independent random crop of the same images: CURL's positive key.
+            key_in=self._visual(batch["obs"], train=True) if images else None,
+            action=torch.as_tensor(batch["action"], device=device),
+            reward=torch.as_tensor(batch["reward"], device=device),
+            done=torch.as_tensor(batch["done"], device=device),
+            collided=torch.as_tensor(batch["collision"], device=device),
+            view_mask=self._view_mask(len(batch["action"])),
+        )
+
+    def _critic_and_aux_step(self, latent: torch.Tensor, x: _TrainInputs) -> dict[str, float]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
-            next_visual = self.critic.encoder(next_visual_in, view_mask)
-            next_action, next_log_prob = self._sample(next_visual, next_low_dim)
-            next_latent, _ = self.critic_target.features(next_visual_in, next_low_dim, view_mask)
+            next_visual = self.critic.encoder(x.next_visual_in, x.view_mask)
+            next_action, next_log_prob = self._sample(next_visual, x.next_low_dim)
+            next_latent, _ = self.critic_target.features(
+                x.next_visual_in, x.next_low_dim, x.view_mask
+            )
             next_q = (
                 self._q(
                     self.critic_target,
                     self.base_critic_target,
                     next_latent,
-                    next_low_dim,
+                    x.next_low_dim,
                     next_action,
                 )
                 .min(0)
                 .values
             )
-            target = cfg.reward_scale * reward + cfg.gamma * (1 - done) * (
+            target = cfg.reward_scale * x.reward + cfg.gamma * (1 - x.done) * (
                 next_q - alpha * next_log_prob
             )
-        q = self._q(self.critic, self.base_critic, latent, low_dim, action)
+        q = self._q(self.critic, self.base_critic, latent, x.low_dim, x.action)
         critic_loss = 0.5 * (q - target).pow(2).mean(1).sum()
         metrics = {
             "train/critic_loss": _finite("train/critic_loss", critic_loss),
@@ -415,25 +422,25 @@ class ResidualAgent:
         loss = critic_loss
         aux = cfg.aux
         if aux.collision_weight > 0:
-            logits = self.collision_head(latent, action)
-            c_loss = collision_loss(logits, collided, aux.collision_pos_weight)
+            logits = self.collision_head(latent, x.action)
+            c_loss = collision_loss(logits, x.collided, aux.collision_pos_weight)
             loss = loss + aux.collision_weight * c_loss
             metrics["train/collision_loss"] = _finite("train/collision_loss", c_loss)
             predicted = (logits.detach() > 0).float()
-            metrics["train/collision_accuracy"] = (predicted == collided).float().mean().item()
+            metrics["train/collision_accuracy"] = (predicted == x.collided).float().mean().item()
         if cfg.obs_source == "images" and (aux.curl_weight > 0 or aux.across_view_weight > 0):
-            loss = loss + self._contrastive(visual_in, key_in, metrics)
+            loss = loss + self._contrastive(x.view_features, x.key_in, metrics)
         self.critic_optim.zero_grad(set_to_none=True)
         loss.backward()
         self.critic_optim.step()
         return metrics
 
-    def _contrastive(self, visual_in, key_in, metrics: dict[str, float]) -> torch.Tensor:
-        """CURL: the query is one random crop through the online encoder, the positive key
-        another random crop of the same images through the momentum encoder."""
+    def _contrastive(self, query_views, key_in, metrics: dict[str, float]) -> torch.Tensor:
+        """CURL: the query is one random crop through the online encoder (its per-view conv
+        features `query_views`), the positive key another random crop of the same images
+        through the momentum encoder."""
         aux = self.config.aux
         encoder = self.critic.encoder
-        query_views = encoder.conv_trunk(visual_in)
         with torch.no_grad():
             key_views = self.key_encoder.conv_trunk(key_in)
             key_z = self.key_encoder.merge(key_views)

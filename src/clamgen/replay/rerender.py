@@ -270,8 +270,11 @@ class RerenderWorker:
     The worker owns a :class:`~clamgen.sim.scene.Scene` and a
     :class:`~clamgen.sim.render.MultiViewRenderer` of the first ``num_views`` cameras at
     ``image_size`` x ``image_size`` pixels, the configuration of ``ReachEnv(num_views=...,
-    image_size=...)``, so its frames equal the env's. It is started with the "spawn" method: a
-    forked child of a process that already made a GL context (the env's) cannot make its own.
+    image_size=...)``, so its frames equal the env's for the same joints (episodes record the
+    joints as float32, ~1e-7 rad off the simulator's, which can flip an edge pixel). It is
+    started with the "spawn" method: a forked child of a process that already made a GL
+    context (the env's) cannot make its own. Spawn re-imports the main module, so a script
+    that creates a worker needs an ``if __name__ == "__main__":`` guard.
 
     Usage::
 
@@ -318,6 +321,7 @@ class RerenderWorker:
         # Set first so that close() and __del__ work however far __init__ gets.
         self._closed = False
         self._process: Any = None
+        self._renderer: MultiViewRenderer | None = None
         if not 1 <= num_views <= C.NUM_CAMERAS:
             raise ValueError(f"num_views must be in 1..{C.NUM_CAMERAS}, got {num_views}")
         if int(image_size) != image_size or image_size < 1:
@@ -340,7 +344,6 @@ class RerenderWorker:
         self._render_s = 0.0
         self._latency_s = 0.0
         self._scene: Scene | None = None
-        self._renderer: MultiViewRenderer | None = None
         if synchronous:
             return
         context = multiprocessing.get_context("spawn")
