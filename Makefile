@@ -17,8 +17,11 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
+# The main job on a small default: the shipped joint policy on 20 held-out tasks per target
+# speed (Table 1 beside the paper), then a picture of every camera view.
 demo: install
-	$(VENV)/bin/clamgen demo
+	$(VENV)/bin/clamgen eval --policy base --num-tasks 20 --out runs/demo/table1_base
+	$(VENV)/bin/clamgen demo --num-episodes 3
 
 test: install
 	$(VENV)/bin/ruff check src tests benchmarks
@@ -27,6 +30,7 @@ test: install
 bench: install
 	$(PY) benchmarks/env_steps.py
 	$(PY) benchmarks/render.py
+	$(PY) benchmarks/sb3_her.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis

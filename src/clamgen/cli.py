@@ -276,6 +276,23 @@ def _evaluate_table2(config: EvalConfig, policy, source: str, label: str, out: P
     return row
 
 
+def report(config) -> None:
+    """Write results/REPORT.md: Tables 1 and 2 beside the paper, learning curves, speed."""
+    from clamgen.experiments.report import build_report
+
+    try:
+        page = build_report(config)
+    except FileNotFoundError as error:
+        raise SystemExit(str(error)) from error
+    print(f"wrote {page}")
+
+
+def _report_config(argv: list[str]):
+    from clamgen.experiments.report import ReportConfig
+
+    return tyro.cli(ReportConfig, args=argv, prog="clamgen report")
+
+
 # Subcommand name -> (config builder from argv, handler). Each handler takes its config.
 COMMANDS: dict[str, tuple[Callable, Callable]] = {
     "demo": (lambda argv: tyro.cli(DemoConfig, args=argv, prog="clamgen demo"), demo),
@@ -286,6 +303,7 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
     ),
     "eval": (lambda argv: tyro.cli(EvalConfig, args=argv, prog="clamgen eval"), evaluate_table),
     "render": (_render_config, render),
+    "report": (_report_config, report),
 }
 
 
