@@ -28,6 +28,7 @@ test: install
 	$(PY) -m pytest -q
 
 bench: install
+	$(PY) -m pip install --quiet -e ".[bench]"
 	$(PY) benchmarks/env_steps.py
 	$(PY) benchmarks/render.py
 	$(PY) benchmarks/sb3_her.py
