@@ -203,18 +203,19 @@ def evaluate_table(config: EvalConfig) -> list:
     except ValueError as error:
         raise SystemExit(f"bad --speeds: {error}") from error
     try:
-        policy, source = load_policy(config.policy)
+        policy, source, env_kwargs = load_policy(config.policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
     label = policy_label(config.policy)
     out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
     if config.table == 2:
-        return [_evaluate_table2(config, policy, source, label, out)]
+        return [_evaluate_table2(config, policy, source, label, out, env_kwargs)]
     print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")
     rows = table1(
         policy,
         config.num_tasks,
         speeds,
+        env_kwargs=env_kwargs,
         progress=lambda row: print(
             f"  speed {row.label():>16}: success {row.success_rate:.3f}, path ratio "
             f"{row.path_ratio:.3f}, {row.median_act_ms:.4f} ms/action"
@@ -240,8 +241,8 @@ def render(config) -> dict:
     from clamgen.experiments.video import render_rollouts
 
     try:
-        policy, _ = load_policy(config.policy)
-        summary = render_rollouts(config, policy, policy_label(config.policy))
+        policy, _, env_kwargs = load_policy(config.policy)
+        summary = render_rollouts(config, policy, policy_label(config.policy), env_kwargs)
     except (CheckpointError, ValueError) as error:
         raise SystemExit(str(error)) from error
     for episode in summary["episodes"]:
@@ -256,12 +257,12 @@ def _render_config(argv: list[str]):
     return tyro.cli(RenderConfig, args=argv, prog="clamgen render")
 
 
-def _evaluate_table2(config: EvalConfig, policy, source: str, label: str, out: Path):
+def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_kwargs: dict):
     from clamgen.experiments.tables import table2_markdown, table2_row
 
     name = config.name or TABLE2_ROW_NAMES.get(config.policy, label)
     print(f"evaluating {source} on {config.num_tasks} held-out obstacle tasks ...")
-    row = table2_row(name, policy, config.num_tasks)
+    row = table2_row(name, policy, config.num_tasks, env_kwargs)
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "policy": source,

@@ -56,6 +56,19 @@ def test_privileged_residual_trains_exports_and_loads(tmp_path, base_policy):
         "obstacles": np.zeros((2, 8), np.float32),
     }
     assert agent.act(obs, deterministic=True).shape == (6,)
+    # `clamgen eval --table 2` runs it with the observations it was trained on.
+    from clamgen.cli import EvalConfig, evaluate_table
+
+    (row,) = evaluate_table(
+        EvalConfig(
+            table=2,
+            policy=str(config.run_dir / POLICY_NAME),
+            num_tasks=2,
+            out=tmp_path / "row",
+            name="privileged",
+        )
+    )
+    assert row.name == "privileged" and 0 <= row.success_rate <= 1 and row.median_step_ms > 0
 
 
 def image_config(tmp_path, base_policy, **kwargs) -> Stage2Config:

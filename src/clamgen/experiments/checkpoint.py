@@ -49,8 +49,9 @@ def save_torch(path: Path, payload: dict[str, Any]) -> None:
     atomic_write(path, lambda tmp: torch.save(payload, tmp))
 
 
-def load_torch(path: Path, kind: str) -> dict[str, Any]:
-    """Load a clamgen torch file of `kind`, with errors that say what is wrong."""
+def load_torch(path: Path, kind: str | None) -> dict[str, Any]:
+    """Load a clamgen torch file of `kind` (None: any kind), with errors that say what is
+    wrong."""
     path = Path(path)
     if not path.exists():
         raise CheckpointError(f"checkpoint not found: {path}")
@@ -63,7 +64,7 @@ def load_torch(path: Path, kind: str) -> dict[str, Any]:
         ) from error
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a clamgen checkpoint")
-    if payload.get("kind") != kind:
+    if kind is not None and payload.get("kind") != kind:
         raise CheckpointError(f"{path} holds a {payload.get('kind')!r}, expected a {kind!r}")
     return payload
 

@@ -25,6 +25,8 @@ class EpisodeRecord:
     """Length of the tip's path, metres."""
     act_times_s: list[float] = field(default_factory=list, repr=False)
     """Wall time of each `policy.act` call."""
+    step_times_s: list[float] = field(default_factory=list, repr=False)
+    """Wall time of each `env.step` call (kinematics, collision checks, rendering)."""
 
     @property
     def success(self) -> bool:
@@ -34,6 +36,7 @@ class EpisodeRecord:
     def to_json(self) -> dict[str, Any]:
         data = asdict(self)
         data.pop("act_times_s")
+        data.pop("step_times_s")
         data["success"] = self.success
         return data
 
@@ -49,7 +52,9 @@ def run_episode(env, policy: Policy, seed: int, options: dict | None = None) -> 
         action = policy.act(obs)
         record.act_times_s.append(time.perf_counter() - start)
         previous_tip = obs["achieved_goal"]
+        start = time.perf_counter()
         obs, _, terminated, truncated, info = env.step(action)
+        record.step_times_s.append(time.perf_counter() - start)
         record.tip_path_m += float(np.linalg.norm(obs["achieved_goal"] - previous_tip))
         record.collided |= bool(info.get("collision", False))
         record.reached |= bool(info.get("is_success", False))

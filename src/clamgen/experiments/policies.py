@@ -19,27 +19,38 @@ def resolve_policy_path(name: str) -> Path:
     return Path(name)
 
 
-def load_policy(name: str) -> tuple[Policy, str]:
-    """A policy and a description of where it came from.
+def load_policy(name: str) -> tuple[Policy, str, dict]:
+    """A policy, a description of where it came from, and the env options it observes with.
 
     `name`: "ik" (IK interpolation), "rrt" (OMPL RRTConnect with the full scene model),
-    "base" (the shipped joint policy) or the path of a policy file from `clamgen train`.
+    "base" (the shipped joint policy) or the path of a policy file from `clamgen train` or
+    `clamgen train-residual`. The env options (views, image size, obstacle poses) are those
+    the policy was trained with; baselines and joint policies need none.
     Raises `clamgen.experiments.checkpoint.CheckpointError` for a bad policy file.
     """
     if name == "ik":
         from clamgen.baselines import IKInterpolationPolicy
 
-        return IKInterpolationPolicy(), "ik_interpolation"
+        return IKInterpolationPolicy(), "ik_interpolation", {}
     if name == "rrt":
         from clamgen.baselines import RRTPolicy
 
-        return RRTPolicy(), "rrt_connect"
+        return RRTPolicy(), "rrt_connect", {}
+    from clamgen.experiments import checkpoint as ckpt
     from clamgen.experiments.evaluate import SACPolicy
     from clamgen.experiments.train import load_policy_agent
 
     path = resolve_policy_path(name)
+    source = f"{name} ({SHIPPED_POLICIES[name]})" if name in SHIPPED_POLICIES else str(path)
+    if ckpt.load_torch(path, kind=None).get("kind") == "residual-policy":
+        from clamgen.experiments.stage2 import load_residual_agent
+
+        agent, config = load_residual_agent(path)
+        kwargs = config.env.make_kwargs()
+        kwargs.pop("target_speed")
+        return SACPolicy(agent), source, kwargs
     agent, _ = load_policy_agent(path)
-    return SACPolicy(agent), str(path)
+    return SACPolicy(agent), source, {}
 
 
 def policy_label(name: str) -> str:

@@ -103,7 +103,7 @@ class RolloutRenderer:
             self.views.close()
 
 
-def render_rollouts(config: RenderConfig, policy, label: str) -> dict:
+def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -> dict:
     """Roll out `policy` and write the video files; returns the episode summary."""
     from clamgen.tasks.reach import validate_speed
 
@@ -117,7 +117,7 @@ def render_rollouts(config: RenderConfig, policy, label: str) -> dict:
         config.target_speed if config.target_speed == "variable" else float(config.target_speed)
     )
     num_obstacles = 2 if config.env_id == ENV_IDS[1] else 0
-    env = ReachEnv(num_obstacles=num_obstacles, target_speed=speed)
+    env = ReachEnv(num_obstacles=num_obstacles, target_speed=speed, **(env_kwargs or {}))
     renderer = RolloutRenderer(env, config.num_views)
     config.out.parent.mkdir(parents=True, exist_ok=True)
     mp4_path, gif_path = config.out.with_suffix(".mp4"), config.out.with_suffix(".gif")
