@@ -305,6 +305,17 @@ class SACAgent:
             "numpy_rng": self._rng.bit_generator.state,
         }
 
+    def load_policy_state(self, state: Mapping[str, Any]) -> None:
+        """Restore the acting part only (actor, critic as its own target, normaliser,
+        temperature), as kept by a policy file; optimisers and RNG states keep their values."""
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(state["critic"])
+        self.critic_target.load_state_dict(state["critic"])
+        self.normalizer.load_state_dict(state["normalizer"])
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        self._fast_actor = self._make_fast_actor()
+
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
         """Restore from :meth:`state_dict` (values are copied into the existing tensors)."""
         self.actor.load_state_dict(state["actor"])

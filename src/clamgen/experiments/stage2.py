@@ -22,7 +22,7 @@ from clamgen.agents.residual import ResidualAgent, ResidualConfig
 from clamgen.agents.sac import SACAgent, SACConfig
 from clamgen.envs import ENV_IDS
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.config import EnvConfig, LoopConfig, config_from_json
+from clamgen.experiments.config import EnvConfig, LoopConfig, config_from_json, from_dict
 from clamgen.experiments.train import Trainer, load_policy_agent
 from clamgen.replay import ReplayConfig
 from clamgen.replay.her import reversible_her
@@ -168,9 +168,7 @@ def load_residual_agent(path: Path) -> tuple[ResidualAgent, Stage2Config]:
     payload = ckpt.load_torch(Path(path), RESIDUAL_POLICY_KIND)
     config: Stage2Config = config_from_json(payload["config"], Stage2Config)
     state = dict(payload["agent"])
-    base_config = SACConfig(
-        **{k: tuple(v) if isinstance(v, list) else v for k, v in payload["base_config"].items()}
-    )
+    base_config = from_dict(SACConfig, payload["base_config"])
     obs_dim = int(state["normalizer"]["mean"].shape[0])
     base = SACAgent(base_config, obs_dim=obs_dim, action_dim=int(payload["action_dim"]))
     agent = ResidualAgent(config.agent, base)

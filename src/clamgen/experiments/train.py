@@ -34,6 +34,7 @@ from clamgen.experiments.config import (
     TrainConfig,
     config_from_json,
     config_to_json,
+    from_dict,
 )
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
 from clamgen.replay import EpisodeRecorder, ReplayBuffer, obs_spec_from_space
@@ -370,23 +371,14 @@ def load_policy_agent(path: Path) -> tuple[SACAgent, TrainConfig]:
     """The SAC agent of a policy file (`export_policy`) and the config that trained it."""
     payload = ckpt.load_torch(Path(path), ckpt.POLICY_KIND)
     config = config_from_json(payload["config"])
-    agent_config = SACConfig(
-        **{k: tuple(v) if isinstance(v, list) else v for k, v in payload["agent"]["config"].items()}
-    )
+    agent_config = from_dict(SACConfig, payload["agent"]["config"])
     env = make_env(dataclasses.replace(config.env, num_views=0, obs_mode="joints"))
     agent = SACAgent.from_spaces(agent_config, env.observation_space, env.action_space)
     env.close()
-    state = payload["agent"]
     try:
-        agent.actor.load_state_dict(state["actor"])
-        agent.critic.load_state_dict(state["critic"])
-        agent.critic_target.load_state_dict(state["critic"])
-        agent.normalizer.load_state_dict(state["normalizer"])
-        with torch.no_grad():
-            agent.log_alpha.copy_(state["log_alpha"])
+        agent.load_policy_state(payload["agent"])
     except (RuntimeError, KeyError) as error:
         raise ckpt.CheckpointError(f"{path} does not match its own config: {error}") from error
-    agent._fast_actor = agent._make_fast_actor()
     return agent, config
 
 
