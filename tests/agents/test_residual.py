@@ -134,6 +134,16 @@ def test_switches_change_what_they_claim():
     assert masks.any(1).all()  # never all views dropped
 
 
+def test_image_only_agent_ignores_joints_and_goal():
+    agent = ResidualAgent(config(residual=False, use_low_dim=False), base_agent())
+    data = batch()["obs"]
+    moved = dict(data, observation=data["observation"] + 1.0, desired_goal=data["desired_goal"] * 2)
+    np.testing.assert_array_equal(agent.act(data, True), agent.act(moved, True))
+    assert np.isfinite(agent.update(batch())["train/critic_loss"])
+    with pytest.raises(ValueError, match="image-only"):
+        config(use_low_dim=False)  # residual on a joint-space base needs joints
+
+
 def test_privileged_obstacle_residual_uses_poses_not_images():
     agent = ResidualAgent(config(obs_source="obstacles"), base_agent())
     data = batch(obstacles=True)

@@ -72,6 +72,9 @@ class ResidualConfig:
     random offsets (CURL's augmentation), acting takes the centre crop."""
     residual: bool = True
     """Learn a residual on the frozen base (CLAMGen); False: the "no residual" ablation."""
+    use_low_dim: bool = True
+    """Feed joints and goal to the networks. False: the image-only policy of the paper's
+    Table 1 (the goal is inferred from the images; needs `residual=False`)."""
     finetune_base: bool = False
     """Also update the base actor and base critic (the paper says it can)."""
     warmup_updates: int = 1_000
@@ -112,6 +115,8 @@ class ResidualConfig:
             raise ValueError(f"view_dropout must be in [0, 1), got {self.view_dropout}")
         if self.crop_padding < 0:
             raise ValueError("crop_padding must be >= 0")
+        if not self.use_low_dim and (self.residual or self.obs_source != "images"):
+            raise ValueError("use_low_dim=False (image-only) needs residual=False and images")
 
     @property
     def stored_image_size(self) -> int:
@@ -288,7 +293,11 @@ class ResidualAgent:
         return "images" if self.config.obs_source == "images" else "obstacles"
 
     def _low_dim(self, obs: Mapping[str, Any]) -> torch.Tensor:
+        """Normalised joints + goal (B, 9); zeros for an image-only agent, whose networks then
+        see nothing but the images (the env still records joints and goals for relabelling)."""
         features = torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device)
+        if not self.config.use_low_dim:
+            return torch.zeros_like(features)
         return self.normalizer(features)
 
     def _raw_visual(self, obs: Mapping[str, Any]) -> torch.Tensor:
