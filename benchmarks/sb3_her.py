@@ -2,9 +2,11 @@
 `HerReplayBuffer`, side by side on the same environment, budget and evaluation tasks.
 
 Both use 256x256 networks, batch 256, gamma 0.98, Adam 3e-4, "future" HER with 4 relabelled
-goals per real one (her_ratio 0.8), 2000 random steps first and one gradient update per two
-env steps. Ours steps 4 envs in lockstep and adds reversible HER; SB3 steps one env (its HER
-buffer's usual setting). Every `--eval-every` env steps the deterministic policy runs 50 fixed
+goals per real one (her_ratio 0.8), 2000 random steps first, one gradient update per two env
+steps, rewards scaled by 100 (the env's -0.01 per step becomes HER's usual -1: ours through
+`SACConfig.reward_scale`, SB3 through a reward-scaling wrapper, without which it does not learn
+at all in 20k steps) and a learned temperature starting at 0.1. Ours steps 4 envs in
+lockstep and adds reversible HER; SB3 steps one env (its HER buffer's usual setting). Every `--eval-every` env steps the deterministic policy runs 50 fixed
 evaluation tasks; evaluation time is not counted.
 
     python benchmarks/sb3_her.py [--max-steps 40000] [--target 0.9]
@@ -37,6 +39,23 @@ from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
 from clamgen.experiments.train import Trainer
 
 NUM_EVAL_TASKS = 50
+REWARD_SCALE = 100.0
+
+
+class ScaledReward(gym.Wrapper):
+    """Rewards (from `step` and from `compute_reward`, which SB3's HER buffer calls) times a
+    factor: what our SAC does internally with `reward_scale`."""
+
+    def __init__(self, env: gym.Env, scale: float) -> None:
+        super().__init__(env)
+        self.scale = scale
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward * self.scale, terminated, truncated, info
+
+    def compute_reward(self, achieved_goal, desired_goal, info):
+        return self.scale * self.env.unwrapped.compute_reward(achieved_goal, desired_goal, info)
 
 
 def eval_success(policy) -> float:
@@ -89,7 +108,7 @@ def run_sb3(args) -> dict:
     from stable_baselines3 import SAC, HerReplayBuffer
     from stable_baselines3.common.callbacks import BaseCallback
 
-    env = gym.make("CLAMGen/Reach-v0")
+    env = ScaledReward(gym.make("CLAMGen/Reach-v0"), REWARD_SCALE)
     model = SAC(
         "MultiInputPolicy",
         env,
@@ -100,6 +119,7 @@ def run_sb3(args) -> dict:
         gamma=0.98,
         train_freq=2,
         gradient_steps=1,
+        ent_coef="auto_0.1",
         replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
         policy_kwargs={"net_arch": [256, 256]},
