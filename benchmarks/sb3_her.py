@@ -5,9 +5,10 @@ Both use 256x256 networks, batch 256, gamma 0.98, Adam 3e-4, "future" HER with 4
 goals per real one (her_ratio 0.8), 2000 random steps first, one gradient update per two env
 steps, rewards scaled by 100 (the env's -0.01 per step becomes HER's usual -1: ours through
 `SACConfig.reward_scale`, SB3 through a reward-scaling wrapper, without which it does not learn
-at all in 20k steps) and a learned temperature starting at 0.1. Ours steps 4 envs in
-lockstep and adds reversible HER; SB3 steps one env (its HER buffer's usual setting). Every `--eval-every` env steps the deterministic policy runs 50 fixed
-evaluation tasks; evaluation time is not counted.
+at all in 20k steps) and a learned temperature starting at 0.1. Ours steps 4 envs in lockstep
+and adds reversible HER; SB3 steps one env (its HER buffer's usual setting). Every
+`--eval-every` env steps the deterministic policy runs 50 fixed evaluation tasks; evaluation
+time is not counted.
 
     python benchmarks/sb3_her.py [--max-steps 40000] [--target 0.9]
 
