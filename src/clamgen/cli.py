@@ -168,7 +168,7 @@ class EvalConfig:
     table: int = 1
     """1: static and moving targets, no obstacles; 2: static targets past two obstacles."""
     policy: str = "base"
-    """`base` (the joint policy shipped with the package), a policy file written by
+    """`base` or `residual-2views` (policies shipped with the package), a policy file written by
     `clamgen train` (`RUN_DIR/policy.pt`), or `ik` (the IK-interpolation baseline itself)."""
     num_tasks: int = 200
     """Evaluation tasks per speed row (the paper: 200)."""

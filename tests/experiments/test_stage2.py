@@ -129,3 +129,12 @@ def test_stage2_config_refuses_inconsistent_settings(tmp_path, base_policy):
         dataclasses.replace(config, env=dataclasses.replace(config.env, image_size=32))
     with pytest.raises(ValueError, match="sample-time HER"):
         dataclasses.replace(config, replay=ReplayConfig(her_ratio=0.8))
+
+
+def test_shipped_vision_policy_runs_out_of_the_box(tmp_path):
+    from clamgen.cli import EvalConfig, evaluate_table
+
+    (row,) = evaluate_table(
+        EvalConfig(table=2, policy="residual-2views", num_tasks=2, out=tmp_path / "row")
+    )
+    assert 0 <= row.success_rate <= 1 and row.median_act_ms > 0

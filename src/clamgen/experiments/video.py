@@ -30,7 +30,7 @@ class RenderConfig:
     """Render rollouts of a policy to MP4 and GIF."""
 
     policy: str = "base"
-    """`base` (shipped joint policy), a policy file, `ik` (IK interpolation) or `rrt`."""
+    """`base` or `residual-2views` (shipped), a policy file, `ik` (IK interpolation) or `rrt`."""
     env_id: str = ENV_IDS[1]
     """`CLAMGen/Reach-v0` or `CLAMGen/ReachObstacles-v0`."""
     num_episodes: int = 3
