@@ -125,6 +125,7 @@ class Trainer:
         self.recent_successes: deque[bool] = deque(maxlen=RECENT_EPISODES)
         self.obs: list[dict[str, np.ndarray]] = []
         self.recorders: list[EpisodeRecorder] = []
+        self._resumed: bool | None = None  # set by start_or_resume()
 
     def make_agent(self, probe: gym.Env):
         """The agent to train (stage 2 overrides this)."""
@@ -139,7 +140,15 @@ class Trainer:
 
     # ------------------------------------------------------------------------ run
     def start_or_resume(self) -> bool:
-        """Resume from the run directory's checkpoint if there is one; True if resumed."""
+        """Resume from the run directory's checkpoint if there is one; True if resumed.
+
+        Idempotent: `run()` calls it, and a second call returns the first call's answer."""
+        if self._resumed is not None:
+            return self._resumed
+        self._resumed = self._start_or_resume()
+        return self._resumed
+
+    def _start_or_resume(self) -> bool:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         config_path = self.run_dir / "config.json"
         if (self.checkpoint_dir / CHECKPOINT_NAME).exists():
