@@ -114,6 +114,8 @@ def test_image_residual_with_rerendered_her_trains_and_resumes(tmp_path, base_po
     assert 0 <= summary["eval/success_rate"] <= 1
     # Failed episodes were relabelled and re-rendered: more episodes stored than played.
     assert trainer.buffer.num_episodes > trainer.progress.episodes
+    metrics = (config.run_dir / "metrics.csv").read_text()
+    assert "rerender/frames_per_s" in metrics and "train/curl_loss" in metrics
     longer = dataclasses.replace(config, loop=dataclasses.replace(LOOP, total_env_steps=280))
     resumed = Stage2Trainer(longer)
     assert resumed.start_or_resume() and resumed.progress.env_steps == 240

@@ -140,6 +140,12 @@ class Stage2Trainer(Trainer):
                 self.buffer.add_episode(episode)
         return super()._update()
 
+    def _rollout_metrics(self) -> dict[str, float]:
+        metrics = super()._rollout_metrics()
+        if self._worker is not None:
+            metrics |= {key: float(value) for key, value in self._worker.stats.items()}
+        return metrics
+
     def save_checkpoint(self) -> None:
         # Relabelled episodes still being rendered would be lost: wait for them first.
         if self._worker is not None:
