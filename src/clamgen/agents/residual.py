@@ -300,15 +300,11 @@ class ResidualAgent:
             return torch.zeros_like(features)
         return self.normalizer(features)
 
-    def _raw_visual(self, obs: Mapping[str, Any]) -> torch.Tensor:
-        value = torch.as_tensor(np.asarray(obs[self._visual_key()]), device=self.device)
-        return value if self.config.obs_source == "images" else value.float()
-
     def _visual(self, obs: Mapping[str, Any], train: bool) -> torch.Tensor:
         """Images cropped to the encoder's size (random offsets when training), or poses."""
-        value = self._raw_visual(obs)
+        value = torch.as_tensor(np.asarray(obs[self._visual_key()]), device=self.device)
         if self.config.obs_source != "images":
-            return value
+            return value.float()
         crop = self.config.encoder.image_size
         if train:
             return random_crop(value, crop, self._generator)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -32,13 +32,6 @@ class EpisodeRecord:
     def success(self) -> bool:
         """The spec's criterion: reached the target with no collision at any step."""
         return self.reached and not self.collided
-
-    def to_json(self) -> dict[str, Any]:
-        data = asdict(self)
-        data.pop("act_times_s")
-        data.pop("step_times_s")
-        data["success"] = self.success
-        return data
 
 
 def run_episode(env, policy: Policy, seed: int, options: dict | None = None) -> EpisodeRecord:

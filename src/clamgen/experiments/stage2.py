@@ -153,12 +153,12 @@ class Stage2Trainer(Trainer):
                 self.buffer.add_episode(episode)
         super().save_checkpoint()
 
-    def export_policy(self, path: Path) -> None:
-        super().export_policy(path)
-        payload = ckpt.load_torch(path, RESIDUAL_POLICY_KIND)
-        payload["base_config"] = dataclasses.asdict(self.agent.base.config)
-        payload["action_dim"] = self.agent.action_dim
-        ckpt.save_torch(path, payload)
+    def policy_payload(self) -> dict:
+        # The base's own config and sizes, so the file loads without the base policy file.
+        return super().policy_payload() | {
+            "base_config": dataclasses.asdict(self.agent.base.config),
+            "action_dim": self.agent.action_dim,
+        }
 
     def run(self, show_progress: bool = True):
         try:

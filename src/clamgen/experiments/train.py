@@ -363,17 +363,21 @@ class Trainer:
     policy_kind = ckpt.POLICY_KIND
     policy_state_keys = POLICY_STATE_KEYS
 
-    def export_policy(self, path: Path) -> None:
-        """A small file with what acting (and stage 2) need: no optimiser or replay state."""
+    def policy_payload(self) -> dict[str, Any]:
+        """What a policy file holds: acting (and stage 2) needs, no optimiser or replay state.
+        Stage 2 adds to it."""
         state = self.agent.state_dict()
-        payload = {
+        return {
             "format": ckpt.FORMAT,
             "kind": self.policy_kind,
             "config": config_to_json(self.config),
             "env_steps": self.progress.env_steps,
             "agent": {k: state[k] for k in self.policy_state_keys},
         }
-        ckpt.save_torch(path, payload)
+
+    def export_policy(self, path: Path) -> None:
+        """Write the small policy file (`policy_payload`)."""
+        ckpt.save_torch(path, self.policy_payload())
 
 
 def load_policy_agent(path: Path) -> tuple[SACAgent, TrainConfig]:
