@@ -30,12 +30,17 @@ def main() -> None:
     parser.add_argument("--num-frames", type=int, default=100)
     parser.add_argument("--views", type=int, default=3)
     parser.add_argument("--size", type=int, default=128)
+    parser.add_argument(
+        "--quality", default="fast", choices=["fast", "pretty"], help="our renderer's preset"
+    )
     args = parser.parse_args()
 
     env = ReachEnv(num_obstacles=2)
     env.reset(seed=0)
     scene = env.scene
-    renderer = MultiViewRenderer(scene.model, scene.camera_ids[: args.views], args.size, args.size)
+    renderer = MultiViewRenderer(
+        scene.model, scene.camera_ids[: args.views], args.size, args.size, args.quality
+    )
     reference = PyBulletScene()
     reference.set_obstacles(scene.obstacles)
     reference.set_joints(scene.joints)
@@ -59,10 +64,10 @@ def main() -> None:
     print(f"  PyBullet TinyRenderer             {rate_theirs:8.1f}")
     print(f"  ratio {ratio:.2f}x (target >= 2x)")
     path = write_csv(
-        "render",
+        "render" if args.quality == "fast" else f"render_{args.quality}",
         [
             {
-                "benchmark": f"render_{args.views}view_{args.size}px",
+                "benchmark": f"render_{args.views}view_{args.size}px_{args.quality}",
                 "clamgen_per_s": round(rate_ours, 1),
                 "pybullet_per_s": round(rate_theirs, 1),
                 "ratio": round(ratio, 2),
