@@ -192,7 +192,7 @@ def evaluate_table(config: EvalConfig) -> list:
     if config.table not in (1, 2):
         raise SystemExit(f"--table must be 1 or 2, got {config.table}")
     from clamgen.experiments.checkpoint import CheckpointError
-    from clamgen.experiments.policies import load_policy, policy_label
+    from clamgen.experiments.policies import load_policy, policy_label, policy_observation
     from clamgen.experiments.tables import table1, table1_markdown, write_table1
     from clamgen.tasks.reach import validate_speed
 
@@ -223,13 +223,13 @@ def evaluate_table(config: EvalConfig) -> list:
     )
     meta = {
         "policy": source,
-        "observation": "joints",
+        "observation": policy_observation(policy),
         "num_tasks": config.num_tasks,
         "command": "clamgen eval " + " ".join(sys.argv[2:]),
     }
     write_table1(rows, out, meta)
     print()
-    print(table1_markdown(rows))
+    print(table1_markdown(rows, meta["observation"]))
     print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
     return rows
 

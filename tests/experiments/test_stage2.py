@@ -140,3 +140,25 @@ def test_shipped_vision_policy_runs_out_of_the_box(tmp_path):
         EvalConfig(table=2, policy="residual-2views", num_tasks=2, out=tmp_path / "row")
     )
     assert 0 <= row.success_rate <= 1 and row.median_act_ms > 0
+
+
+def test_image_only_policy_evaluates_as_the_image_rows_of_table1(tmp_path, base_policy):
+    config = image_config(tmp_path, base_policy)
+    config = dataclasses.replace(
+        config,
+        env=dataclasses.replace(config.env, env_id="CLAMGen/Reach-v0"),
+        agent=dataclasses.replace(config.agent, residual=False, use_low_dim=False),
+        loop=dataclasses.replace(LOOP, total_env_steps=80),
+    )
+    Stage2Trainer(config).run(show_progress=False)
+    from clamgen.cli import EvalConfig, evaluate_table
+
+    out = tmp_path / "table1"
+    rows = evaluate_table(
+        EvalConfig(
+            table=1, policy=str(config.run_dir / POLICY_NAME), num_tasks=2, speeds=("0.1",), out=out
+        )
+    )
+    assert len(rows) == 1 and 0 <= rows[0].success_rate <= 1 and rows[0].median_act_ms > 0
+    assert '"observation": "images"' in out.with_suffix(".json").read_text()
+    assert "| 1.160 |" in out.with_suffix(".md").read_text()  # the paper's image row, 10 cm/s

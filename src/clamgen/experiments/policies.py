@@ -53,6 +53,15 @@ def load_policy(name: str) -> tuple[Policy, str, dict]:
     return SACPolicy(agent), source, {}
 
 
+def policy_observation(policy: Policy) -> str:
+    """What a policy's networks see, as the paper's Table 1 names it: "joints" (joints and
+    goal), "images" (camera views only: the image-only policy) or "joints+images"."""
+    config = getattr(getattr(policy, "agent", None), "config", None)
+    if getattr(config, "obs_source", None) != "images":
+        return "joints"
+    return "joints+images" if config.use_low_dim else "images"
+
+
 def policy_label(name: str) -> str:
     """A short name for file names: the baseline or shipped name, else the file's stem."""
     return name if name in (*BASELINES, *SHIPPED_POLICIES) else Path(name).stem

@@ -108,7 +108,8 @@ def table1(
 
 def table1_markdown(rows: list[SpeedRow], observation: str = "joints") -> str:
     """Markdown: our numbers beside the paper's."""
-    paper = PAPER_TABLE1[observation]
+    paper = PAPER_TABLE1.get(observation, {})
+    paper_ms = PAPER_INFERENCE_MS.get(observation, "-")
     lines = [
         f"| {observation} policy, speed (cm/s) | success | paper | path ratio | paper "
         "| steps ratio | IK baseline success | inference (ms, median) | paper (ms) |",
@@ -121,7 +122,7 @@ def table1_markdown(rows: list[SpeedRow], observation: str = "joints") -> str:
             f"| {row.label()} | {row.success_rate:.3f} | {fmt(paper_success, '.2f')} "
             f"| {row.path_ratio:.3f} | {fmt(paper_ratio)} | {row.step_ratio:.3f} "
             f"| {row.baseline_success_rate:.3f} "
-            f"| {row.median_act_ms:.4f} | {PAPER_INFERENCE_MS[observation]} |"
+            f"| {row.median_act_ms:.4f} | {paper_ms} |"
         )
     return "\n".join(lines)
 
