@@ -144,6 +144,27 @@ def test_image_only_agent_ignores_joints_and_goal():
         config(use_low_dim=False)  # residual on a joint-space base needs joints
 
 
+def test_privileged_critic_sees_joints_and_goal_but_the_policy_does_not():
+    agent = ResidualAgent(
+        config(residual=False, use_low_dim=False, privileged_critic=True), base_agent()
+    )
+    data = batch()
+    moved = dict(data["obs"], observation=data["obs"]["observation"] + 1.0)
+    np.testing.assert_array_equal(agent.act(data["obs"], True), agent.act(moved, True))
+    x, y = agent._train_inputs(data), agent._train_inputs(dict(data, obs=moved))
+    assert torch.equal(x.actor_low_dim, y.actor_low_dim) and not torch.equal(x.low_dim, y.low_dim)
+    with torch.no_grad():
+        # Same crops and actions: only the joints and goal differ.
+        q = [
+            agent.critic(agent.critic.features(x.visual_in, d)[0], x.action)
+            for d in (x.low_dim, y.low_dim)
+        ]
+    assert not torch.allclose(*q)
+    assert np.isfinite(agent.update(data)["train/actor_loss"])
+    with pytest.raises(ValueError, match="privileged_critic"):
+        config(privileged_critic=True)
+
+
 def test_privileged_obstacle_residual_uses_poses_not_images():
     agent = ResidualAgent(config(obs_source="obstacles"), base_agent())
     data = batch(obstacles=True)

@@ -75,6 +75,10 @@ class ResidualConfig:
     use_low_dim: bool = True
     """Feed joints and goal to the networks. False: the image-only policy of the paper's
     Table 1 (the goal is inferred from the images; needs `residual=False`)."""
+    privileged_critic: bool = False
+    """Image-only policy (`use_low_dim=False`) with a critic that also sees joints and goal
+    (an asymmetric actor-critic): the critic is used in training only, so the policy still acts
+    from images alone. False: the critic sees what the policy sees."""
     finetune_base: bool = False
     """Also update the base actor and base critic (the paper says it can)."""
     warmup_updates: int = 1_000
@@ -117,6 +121,8 @@ class ResidualConfig:
             raise ValueError("crop_padding must be >= 0")
         if not self.use_low_dim and (self.residual or self.obs_source != "images"):
             raise ValueError("use_low_dim=False (image-only) needs residual=False and images")
+        if self.privileged_critic and self.use_low_dim:
+            raise ValueError("privileged_critic is for image-only agents (use_low_dim=False)")
 
     @property
     def stored_image_size(self) -> int:
@@ -200,8 +206,10 @@ class ResidualActor(nn.Module):
 class _TrainInputs:
     """One training batch as tensors (B = batch size, A = action size)."""
 
-    low_dim: torch.Tensor  # (B, 9) normalised joints + goal
+    low_dim: torch.Tensor  # (B, 9) normalised joints + goal, as the critic sees them
     next_low_dim: torch.Tensor
+    actor_low_dim: torch.Tensor  # as the actor sees them (zeros for an image-only policy)
+    next_actor_low_dim: torch.Tensor
     visual_in: torch.Tensor  # (B, V, 4, crop, crop) uint8, or (B, N, 8) obstacle poses
     next_visual_in: torch.Tensor
     key_in: torch.Tensor | None  # another crop of visual_in's images (CURL's key)
@@ -292,11 +300,12 @@ class ResidualAgent:
     def _visual_key(self) -> str:
         return "images" if self.config.obs_source == "images" else "obstacles"
 
-    def _low_dim(self, obs: Mapping[str, Any]) -> torch.Tensor:
-        """Normalised joints + goal (B, 9); zeros for an image-only agent, whose networks then
-        see nothing but the images (the env still records joints and goals for relabelling)."""
+    def _low_dim(self, obs: Mapping[str, Any], critic: bool = False) -> torch.Tensor:
+        """Normalised joints + goal (B, 9) as the actor (or the critic) sees them; zeros for an
+        image-only agent, whose networks then see nothing but the images (the env still
+        records joints and goals for relabelling), unless its critic is privileged."""
         features = torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device)
-        if not self.config.use_low_dim:
+        if not (self.config.use_low_dim or (critic and self.config.privileged_critic)):
             return torch.zeros_like(features)
         return self.normalizer(features)
 
@@ -369,7 +378,7 @@ class ResidualAgent:
             visual = self.critic.encoder(x.visual_in)
         latent, visual = self.critic.fuse(visual, x.low_dim)
         metrics = self._critic_and_aux_step(latent, x)
-        metrics |= self._actor_and_temperature_step(visual.detach(), latent.detach(), x.low_dim)
+        metrics |= self._actor_and_temperature_step(visual.detach(), latent.detach(), x)
         soft_update(self.critic_target, self.critic, cfg.tau)
         momentum_update(self.key_encoder, self.critic.encoder, cfg.aux.encoder_momentum_tau)
         if cfg.finetune_base:
@@ -382,8 +391,10 @@ class ResidualAgent:
         device = self.device
         images = self.config.obs_source == "images"
         return _TrainInputs(
-            low_dim=self._low_dim(batch["obs"]),
-            next_low_dim=self._low_dim(batch["next_obs"]),
+            low_dim=self._low_dim(batch["obs"], critic=True),
+            next_low_dim=self._low_dim(batch["next_obs"], critic=True),
+            actor_low_dim=self._low_dim(batch["obs"]),
+            next_actor_low_dim=self._low_dim(batch["next_obs"]),
             visual_in=self._visual(batch["obs"], train=True),
             next_visual_in=self._visual(batch["next_obs"], train=True),
             # A second, independent random crop of the same images: CURL's positive key.
@@ -400,7 +411,7 @@ class ResidualAgent:
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
             next_visual = self.critic.encoder(x.next_visual_in, x.view_mask)
-            next_action, next_log_prob = self._sample(next_visual, x.next_low_dim)
+            next_action, next_log_prob = self._sample(next_visual, x.next_actor_low_dim)
             next_latent, _ = self.critic_target.features(
                 x.next_visual_in, x.next_low_dim, x.view_mask
             )
@@ -465,19 +476,20 @@ class ResidualAgent:
             loss = loss + aux.across_view_weight * across
         return loss
 
-    def _actor_and_temperature_step(self, visual, latent, low_dim) -> dict[str, float]:
+    def _actor_and_temperature_step(self, visual, latent, x: _TrainInputs) -> dict[str, float]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
         warming_up = cfg.residual and self.num_updates < cfg.warmup_updates
         for module in (self.critic, self.base_critic):
             module.requires_grad_(False)
         try:
-            action, log_prob = self._sample(visual, low_dim)
+            action, log_prob = self._sample(visual, x.actor_low_dim)
             if warming_up:
                 # Paper: during warm-up, maximise Q_base - alpha log pi to clone the base policy.
-                q = self.base_critic(low_dim, action).min(0).values
+                q = self.base_critic(x.low_dim, action).min(0).values
             else:
-                q = self._q(self.critic, self.base_critic, latent, low_dim, action).min(0).values
+                q = self._q(self.critic, self.base_critic, latent, x.low_dim, action)
+                q = q.min(0).values
             actor_loss = (alpha * log_prob - q).mean()
             actor_value = _finite("train/actor_loss", actor_loss)
             self.actor_optim.zero_grad(set_to_none=True)
