@@ -165,6 +165,22 @@ def test_privileged_critic_sees_joints_and_goal_but_the_policy_does_not():
         config(privileged_critic=True)
 
 
+def test_state_regression_trains_the_encoder_and_its_head():
+    def trained(state_weight):
+        aux = AuxLossConfig(collision_hidden_sizes=(16,), state_weight=state_weight)
+        agent = ResidualAgent(config(residual=False, use_low_dim=False, aux=aux), base_agent())
+        metrics = agent.update(batch())
+        return agent, metrics
+
+    (on, metrics), (off, off_metrics) = trained(1.0), trained(0.0)
+    assert np.isfinite(metrics["train/state_loss"]) and "train/state_loss" not in off_metrics
+    for module in ("state_head", "critic"):
+        a, b = getattr(on, module).state_dict(), getattr(off, module).state_dict()
+        assert any(not torch.equal(a[k], b[k]) for k in a), module
+    # The head reads the visual encoding only: no joints or goal reach it.
+    assert on.state_head[0].in_features == on.feature_dim
+
+
 def test_privileged_obstacle_residual_uses_poses_not_images():
     agent = ResidualAgent(config(obs_source="obstacles"), base_agent())
     data = batch(obstacles=True)

@@ -50,6 +50,10 @@ class AuxLossConfig:
     """Weight of the across-view contrastive term (view vs view of one scene)."""
     collision_weight: float = 1.0
     """Weight of the collision-prediction loss."""
+    state_weight: float = 0.0
+    """Weight of a regression of the normalised joints and goal from the visual encoding
+    (privileged information, used in training only; not in the paper). It teaches an
+    image-only encoder where the arm and the target are; 0 switches it off."""
     collision_pos_weight: float | None = None
     """Factor on the loss of colliding steps (BCE ``pos_weight``); about (non-colliding steps) /
     (colliding steps) balances the classes; None weighs both classes alike."""

@@ -210,6 +210,7 @@ class _TrainInputs:
     next_low_dim: torch.Tensor
     actor_low_dim: torch.Tensor  # as the actor sees them (zeros for an image-only policy)
     next_actor_low_dim: torch.Tensor
+    state: torch.Tensor  # (B, 9) the true normalised joints + goal (the state head's target)
     visual_in: torch.Tensor  # (B, V, 4, crop, crop) uint8, or (B, N, 8) obstacle poses
     next_visual_in: torch.Tensor
     key_in: torch.Tensor | None  # another crop of visual_in's images (CURL's key)
@@ -263,11 +264,13 @@ class ResidualAgent:
                 latent_dim, action_dim, config.aux.collision_hidden_sizes
             )
             self.curl = CURLHead(feature_dim, across_view=config.aux.across_view_weight > 0)
+            self.state_head = mlp(feature_dim, (256,), low_dim)
         self.feature_dim = feature_dim
         self.critic.to(self.device)
         self.actor.to(self.device)
         self.collision_head.to(self.device)
         self.curl.to(self.device)
+        self.state_head.to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.key_encoder = make_momentum_copy(self.critic.encoder)
         # The base: its normaliser scales the low-dim input of every network (frozen statistics).
@@ -285,6 +288,7 @@ class ResidualAgent:
             *self.critic.parameters(),
             *self.collision_head.parameters(),
             *self.curl.parameters(),
+            *self.state_head.parameters(),
         ]
         actor_params = list(self.actor.parameters())
         if config.finetune_base:
@@ -377,7 +381,7 @@ class ResidualAgent:
         else:
             visual = self.critic.encoder(x.visual_in)
         latent, visual = self.critic.fuse(visual, x.low_dim)
-        metrics = self._critic_and_aux_step(latent, x)
+        metrics = self._critic_and_aux_step(latent, visual, x)
         metrics |= self._actor_and_temperature_step(visual.detach(), latent.detach(), x)
         soft_update(self.critic_target, self.critic, cfg.tau)
         momentum_update(self.key_encoder, self.critic.encoder, cfg.aux.encoder_momentum_tau)
@@ -395,6 +399,9 @@ class ResidualAgent:
             next_low_dim=self._low_dim(batch["next_obs"], critic=True),
             actor_low_dim=self._low_dim(batch["obs"]),
             next_actor_low_dim=self._low_dim(batch["next_obs"]),
+            state=self.normalizer(
+                torch.as_tensor(flatten_obs(batch["obs"], LOW_DIM_KEYS), device=device)
+            ),
             visual_in=self._visual(batch["obs"], train=True),
             next_visual_in=self._visual(batch["next_obs"], train=True),
             # A second, independent random crop of the same images: CURL's positive key.
@@ -406,7 +413,7 @@ class ResidualAgent:
             view_mask=self._view_mask(len(batch["action"])),
         )
 
-    def _critic_and_aux_step(self, latent: torch.Tensor, x: _TrainInputs) -> dict[str, float]:
+    def _critic_and_aux_step(self, latent, visual, x: _TrainInputs) -> dict[str, float]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
@@ -444,6 +451,10 @@ class ResidualAgent:
             metrics["train/collision_loss"] = _finite("train/collision_loss", c_loss)
             predicted = (logits.detach() > 0).float()
             metrics["train/collision_accuracy"] = (predicted == x.collided).float().mean().item()
+        if aux.state_weight > 0:
+            state_loss = F.mse_loss(self.state_head(visual), x.state)
+            loss = loss + aux.state_weight * state_loss
+            metrics["train/state_loss"] = _finite("train/state_loss", state_loss)
         if cfg.obs_source == "images" and (aux.curl_weight > 0 or aux.across_view_weight > 0):
             loss = loss + self._contrastive(x.view_features, x.key_in, metrics)
         self.critic_optim.zero_grad(set_to_none=True)
@@ -520,6 +531,7 @@ class ResidualAgent:
             "actor": self.actor.state_dict(),
             "collision_head": self.collision_head.state_dict(),
             "curl": self.curl.state_dict(),
+            "state_head": self.state_head.state_dict(),
             "base_actor": self.base_actor.state_dict(),
             "base_critic": self.base_critic.state_dict(),
             "base_critic_target": self.base_critic_target.state_dict(),
@@ -546,6 +558,8 @@ class ResidualAgent:
             "normalizer",
         ):
             getattr(self, name).load_state_dict(state[name])
+        if "state_head" in state:  # absent from files written before the state head existed
+            self.state_head.load_state_dict(state["state_head"])
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
         for name in ("critic_optim", "actor_optim", "alpha_optim"):
