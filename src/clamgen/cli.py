@@ -178,6 +178,9 @@ class EvalConfig:
     """Output stem: writes OUT.json and OUT.md (default: runs/eval/table<N>_<policy>)."""
     name: str | None = None
     """Table 2 row name (default: from the policy)."""
+    torch_threads: int = 1
+    """Torch CPU threads for acting. One is fastest for batch-1 inference of these networks,
+    and more are much slower while other jobs share the cores."""
 
 
 TABLE2_ROW_NAMES = {
@@ -198,6 +201,11 @@ def evaluate_table(config: EvalConfig) -> list:
 
     if config.num_tasks < 1:
         raise SystemExit("num_tasks must be >= 1")
+    if config.torch_threads < 1:
+        raise SystemExit("torch_threads must be >= 1")
+    import torch
+
+    torch.set_num_threads(config.torch_threads)
     try:
         speeds = [validate_speed(s if s == "variable" else float(s)) for s in config.speeds]
     except ValueError as error:
