@@ -1,4 +1,4 @@
-"""Table 1 evaluation: well-formed rows, path ratios on the same tasks, Markdown and JSON."""
+"""Tables 1 and 2: well-formed rows, path ratios on the same tasks, Markdown and JSON."""
 
 import json
 
@@ -8,7 +8,16 @@ import pytest
 from clamgen.baselines import IKInterpolationPolicy
 from clamgen.cli import EvalConfig, evaluate_table
 from clamgen.experiments.evaluate import EpisodeRecord
-from clamgen.experiments.tables import path_ratio, table1, table1_markdown, write_table1
+from clamgen.experiments.tables import (
+    ObstacleRow,
+    blocked_success,
+    blocked_tasks,
+    path_ratio,
+    table1,
+    table1_markdown,
+    table2_markdown,
+    write_table1,
+)
 
 
 def record(success, path, collided=False):
@@ -67,3 +76,23 @@ def test_eval_command_errors_are_clear(tmp_path):
     )
     assert len(rows) == 1 and np.isfinite(rows[0].path_ratio)
     assert (tmp_path / "ik.md").exists()
+
+
+def test_table2_blocked_column_scores_rows_on_the_tasks_ik_interpolation_failed():
+    def row(name, success):
+        rate = sum(success) / len(success)
+        return ObstacleRow(name, len(success), rate, 0.0, rate, 0.3, 0.1, task_success=success)
+
+    rows = [
+        row("IK interpolation (no obstacle model)", [True, False, True, False]),
+        row("CLAMGen, 2 RGBD views", [True, True, False, False]),
+        ObstacleRow("old row", 4, 0.5, 0.0, 0.5, 0.3, 0.1),  # written before per-task results
+    ]
+    blocked = blocked_tasks(rows)
+    np.testing.assert_array_equal(blocked, [False, True, False, True])
+    assert blocked_success(rows[1], blocked) == 0.5 and blocked_success(rows[2], blocked) is None
+    lines = table2_markdown(rows).splitlines()
+    assert "success on blocked tasks (n=2)" in lines[0]
+    assert "| CLAMGen, 2 RGBD views | 0.500 | 0.76 | 0.500 |" in lines[3]
+    assert "| old row | 0.500 | - | - |" in lines[4]
+    assert "blocked" not in table2_markdown(rows[1:])  # no IK row: no column

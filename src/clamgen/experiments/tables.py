@@ -163,6 +163,8 @@ class ObstacleRow:
     median_step_ms: float = float("nan")
     plan_time_median_s: float | None = None
     plan_time_p95_s: float | None = None
+    task_success: list[bool] | None = None
+    """Success per task, in evaluation-seed order (for the blocked-task column)."""
 
 
 class _PlanTimeRecorder:
@@ -205,14 +207,41 @@ def table2_row(
         median_step_ms=float(np.median(np.concatenate([r.step_times_s for r in records])) * 1e3),
         plan_time_median_s=None if times is None else float(np.median(times)),
         plan_time_p95_s=None if times is None else float(np.percentile(times, 95)),
+        task_success=[bool(r.success) for r in records],
     )
 
 
+BLOCKING_ROW = "IK interpolation (no obstacle model)"
+"""The row whose failures define the "blocked" tasks: those where moving straight to the goal
+(IK interpolation, blind to the obstacles) does not succeed, so an obstacle is in the way."""
+
+
+def blocked_tasks(rows: list[ObstacleRow]) -> np.ndarray | None:
+    """Per-task mask (True = blocked) from the `BLOCKING_ROW`'s failures, or None without its
+    per-task results."""
+    for row in rows:
+        if row.name == BLOCKING_ROW and row.task_success is not None:
+            return ~np.asarray(row.task_success, bool)
+    return None
+
+
+def blocked_success(row: ObstacleRow, blocked: np.ndarray) -> float | None:
+    """`row`'s success rate on the blocked tasks; None if it has no per-task results for the
+    same tasks, or there are no blocked tasks."""
+    if row.task_success is None or len(row.task_success) != len(blocked) or not blocked.any():
+        return None
+    return float(np.asarray(row.task_success, bool)[blocked].mean())
+
+
 def table2_markdown(rows: list[ObstacleRow]) -> str:
+    """Markdown of Table 2 rows. When the IK-interpolation row is among them with per-task
+    results, a column gives each row's success on the tasks it failed (obstacle in the way)."""
+    blocked = blocked_tasks(rows)
+    blocked_header = "" if blocked is None else f" success on blocked tasks (n={blocked.sum()}) |"
     lines = [
-        "| row | success | paper | collision rate | reached | tip path (m) "
+        "| row | success | paper |" + blocked_header + " collision rate | reached | tip path (m) "
         "| act (ms, median) | env step incl. rendering (ms) | planning (s, median / p95) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|" + ("" if blocked is None else "---|"),
     ]
     for row in rows:
         paper = PAPER_TABLE2.get(row.name)
@@ -221,9 +250,14 @@ def table2_markdown(rows: list[ObstacleRow]) -> str:
             if row.plan_time_median_s is None
             else f"{row.plan_time_median_s:.3f} / {row.plan_time_p95_s:.3f}"
         )
+        blocked_cell = ""
+        if blocked is not None:
+            value = blocked_success(row, blocked)
+            blocked_cell = " - |" if value is None else f" {value:.3f} |"
         lines.append(
-            f"| {row.name} | {row.success_rate:.3f} | {'-' if paper is None else paper} "
-            f"| {row.collision_rate:.3f} | {row.reach_rate:.3f} | {row.mean_tip_path_m:.3f} "
-            f"| {row.median_act_ms:.4f} | {row.median_step_ms:.3f} | {planning} |"
+            f"| {row.name} | {row.success_rate:.3f} | {'-' if paper is None else paper} |"
+            f"{blocked_cell} {row.collision_rate:.3f} | {row.reach_rate:.3f} "
+            f"| {row.mean_tip_path_m:.3f} | {row.median_act_ms:.4f} "
+            f"| {row.median_step_ms:.3f} | {planning} |"
         )
     return "\n".join(lines)
