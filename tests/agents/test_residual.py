@@ -77,7 +77,7 @@ def test_residual_starts_exactly_at_the_base_action_and_base_q():
     np.testing.assert_allclose(
         agent.act(data, deterministic=True), base.act(data, deterministic=True), atol=1e-6
     )
-    low_dim = agent._low_dim(data)
+    low_dim = agent._state(data)
     latent, _ = agent.critic.features(agent._visual(data, train=False), low_dim)
     action = torch.zeros(8, 6)
     q = agent._q(agent.critic, agent.base_critic, latent, low_dim, action)

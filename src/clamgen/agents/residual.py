@@ -304,14 +304,17 @@ class ResidualAgent:
     def _visual_key(self) -> str:
         return "images" if self.config.obs_source == "images" else "obstacles"
 
-    def _low_dim(self, obs: Mapping[str, Any], critic: bool = False) -> torch.Tensor:
-        """Normalised joints + goal (B, 9) as the actor (or the critic) sees them; zeros for an
-        image-only agent, whose networks then see nothing but the images (the env still
-        records joints and goals for relabelling), unless its critic is privileged."""
-        features = torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device)
-        if not (self.config.use_low_dim or (critic and self.config.privileged_critic)):
-            return torch.zeros_like(features)
-        return self.normalizer(features)
+    def _state(self, obs: Mapping[str, Any]) -> torch.Tensor:
+        """The true normalised joints + goal (B, 9)."""
+        return self.normalizer(torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device))
+
+    def _seen(self, state: torch.Tensor, critic: bool = False) -> torch.Tensor:
+        """`state` as the actor (or the critic) sees it: zeros for an image-only agent, whose
+        networks then see nothing but the images (the env still records joints and goals for
+        relabelling), unless its critic is privileged."""
+        if self.config.use_low_dim or (critic and self.config.privileged_critic):
+            return state
+        return torch.zeros_like(state)
 
     def _visual(self, obs: Mapping[str, Any], train: bool) -> torch.Tensor:
         """Images cropped to the encoder's size (random offsets when training), or poses."""
@@ -359,7 +362,7 @@ class ResidualAgent:
         single = np.asarray(obs["desired_goal"]).ndim == 1
         if single:
             obs = {k: np.asarray(v)[None] for k, v in obs.items()}
-        low_dim = self._low_dim(obs)
+        low_dim = self._seen(self._state(obs))
         visual = self.critic.encoder(self._visual(obs, train=False))
         if deterministic:
             action = torch.tanh(self._pre_squash(visual, low_dim)[0])
@@ -394,14 +397,13 @@ class ResidualAgent:
         """Tensors of a batch: normalised low-dim inputs, random crops, view-dropout mask."""
         device = self.device
         images = self.config.obs_source == "images"
+        state, next_state = self._state(batch["obs"]), self._state(batch["next_obs"])
         return _TrainInputs(
-            low_dim=self._low_dim(batch["obs"], critic=True),
-            next_low_dim=self._low_dim(batch["next_obs"], critic=True),
-            actor_low_dim=self._low_dim(batch["obs"]),
-            next_actor_low_dim=self._low_dim(batch["next_obs"]),
-            state=self.normalizer(
-                torch.as_tensor(flatten_obs(batch["obs"], LOW_DIM_KEYS), device=device)
-            ),
+            low_dim=self._seen(state, critic=True),
+            next_low_dim=self._seen(next_state, critic=True),
+            actor_low_dim=self._seen(state),
+            next_actor_low_dim=self._seen(next_state),
+            state=state,
             visual_in=self._visual(batch["obs"], train=True),
             next_visual_in=self._visual(batch["next_obs"], train=True),
             # A second, independent random crop of the same images: CURL's positive key.
