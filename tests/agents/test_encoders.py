@@ -17,6 +17,7 @@ from clamgen.agents.encoders import (
     EncoderConfig,
     LowDimEncoder,
     MultiViewEncoder,
+    SpatialSoftmax,
     conv_output_size,
     fuse,
     view_dropout_mask,
@@ -103,6 +104,30 @@ def test_gradients_reach_every_parameter(shared: bool) -> None:
     fused = fuse(encoder(random_images(config, 3), mask), low_dim_encoder(torch.randn(3, 9)))
     fused.pow(2).sum().backward()
     for name, param in [*encoder.named_parameters(), *low_dim_encoder.named_parameters()]:
+        assert param.grad is not None and param.grad.abs().sum() > 0, name
+
+
+def test_spatial_softmax_finds_a_bright_spot() -> None:
+    layer = SpatialSoftmax(5, 9)
+    with torch.no_grad():
+        layer.log_temperature.fill_(-3.0)  # sharp: nearly all the weight on the peak
+    maps = torch.zeros(1, 2, 5, 9)
+    maps[0, 0, 4, 0] = 10.0  # bottom-left corner
+    maps[0, 1, 2, 6] = 10.0  # middle row, 7th of 9 columns
+    keypoints = layer(maps)
+    torch.testing.assert_close(keypoints, torch.tensor([[-1.0, 1.0, 0.5, 0.0]]), atol=1e-4, rtol=0)
+    assert layer(torch.zeros(1, 1, 5, 9)).abs().max() < 1e-6  # flat map: the centre
+
+
+def test_spatial_softmax_encoder_shapes_and_gradients() -> None:
+    config = dataclasses.replace(TINY, image_size=32, spatial_softmax=True)  # 9 x 9 maps
+    assert config.view_feature_dim == 2 * config.num_channels
+    encoder = make_encoder(config)
+    features = encoder.conv_trunk(random_images(config, 3))
+    assert features.shape == (3, config.num_views, 2 * config.num_channels)
+    assert features.abs().max() <= 1.0
+    encoder(random_images(config, 3)).pow(2).sum().backward()
+    for name, param in encoder.named_parameters():
         assert param.grad is not None and param.grad.abs().sum() > 0, name
 
 

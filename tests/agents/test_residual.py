@@ -165,6 +165,50 @@ def test_privileged_critic_sees_joints_and_goal_but_the_policy_does_not():
         config(privileged_critic=True)
 
 
+def test_privileged_base_q_starts_the_image_only_critic_at_q_base():
+    base = base_agent()
+    image_only = dict(residual=False, use_low_dim=False, privileged_critic=True)
+    agent = ResidualAgent(config(**image_only, privileged_base_q=True, warmup_updates=2), base)
+    data = batch()
+    x = agent._train_inputs(data)
+    with torch.no_grad():
+        latent, _ = agent.critic.features(x.visual_in, x.low_dim)
+        q = agent._q(agent.critic, agent.base_critic, latent, x.low_dim, x.action)
+    torch.testing.assert_close(q, base.critic(x.low_dim, x.action))
+    # The policy has no base action: it still ignores the joints and the goal.
+    moved = dict(data["obs"], observation=data["obs"]["observation"] + 1.0)
+    np.testing.assert_array_equal(agent.act(data["obs"], True), agent.act(moved, True))
+    warmups = [agent.update(batch(seed=i))["train/warmup"] for i in range(3)]
+    assert warmups == [1.0, 1.0, 0.0]
+    plain = ResidualAgent(config(**image_only), base_agent())
+    assert plain.update(data)["train/warmup"] == 0.0
+    with pytest.raises(ValueError, match="privileged_base_q"):
+        config(residual=False, use_low_dim=False, privileged_base_q=True)
+
+
+def test_encoder_from_critic_off_leaves_the_encoder_to_the_aux_losses():
+    def encoder_after_update(reward, **kwargs):
+        aux = AuxLossConfig(collision_hidden_sizes=(16,), state_weight=1.0)
+        agent = ResidualAgent(
+            config(residual=False, use_low_dim=False, privileged_critic=True, aux=aux, **kwargs),
+            base_agent(),
+        )
+        data = batch()
+        agent.update(dict(data, reward=np.full_like(data["reward"], reward)))
+        return list(agent.critic.encoder.parameters())
+
+    def same(a, b):
+        return all(torch.equal(p, q) for p, q in zip(a, b, strict=True))
+
+    # The rewards change the critic loss only: they reach the encoder only through the critic.
+    assert not same(encoder_after_update(-0.01), encoder_after_update(-1.0))
+    detached = dict(encoder_from_critic=False)
+    assert same(encoder_after_update(-0.01, **detached), encoder_after_update(-1.0, **detached))
+    no_aux = AuxLossConfig(curl_weight=0, across_view_weight=0, state_weight=0)
+    with pytest.raises(ValueError, match="encoder_from_critic"):
+        config(encoder_from_critic=False, aux=no_aux)
+
+
 def test_state_regression_trains_the_encoder_and_its_head():
     def trained(state_weight):
         aux = AuxLossConfig(collision_hidden_sizes=(16,), state_weight=state_weight)

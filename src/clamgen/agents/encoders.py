@@ -36,6 +36,7 @@ __all__ = [
     "EncoderConfig",
     "LowDimEncoder",
     "MultiViewEncoder",
+    "SpatialSoftmax",
     "conv_output_size",
     "fuse",
     "to_unit_float",
@@ -81,6 +82,11 @@ class EncoderConfig:
     """Size of the low-dimensional input: joint angles (6) + goal (3)."""
     low_dim_size: int = 64
     """Size of the low-dimensional (joints + goal) encoding."""
+    spatial_softmax: bool = False
+    """End each view's conv stack in a spatial softmax (Levine et al., 2016, "End-to-end
+    training of deep visuomotor policies"): each channel's last conv map becomes the expected
+    image position (x, y) of its activation, so a view's features are 2 * num_channels
+    keypoint coordinates instead of the flattened map. Off = the paper's flattened features."""
 
     def __post_init__(self) -> None:
         if conv_output_size(self.image_size, self.strides, self.kernel_size) < 1:
@@ -96,7 +102,10 @@ class EncoderConfig:
 
     @property
     def view_feature_dim(self) -> int:
-        """Size F of one view's flattened conv features."""
+        """Size F of one view's conv features: the flattened map, or 2 coordinates per channel
+        with ``spatial_softmax``."""
+        if self.spatial_softmax:
+            return 2 * self.num_channels
         return self.num_channels * self.conv_output_side**2
 
 
@@ -110,12 +119,39 @@ def conv_output_size(image_size: int, strides: tuple[int, ...], kernel_size: int
     return side
 
 
+class SpatialSoftmax(nn.Module):
+    """(N, C, H, W) feature maps -> (N, 2C) expected (x, y) of each channel's activation.
+
+    Each channel's map is a softmax over its H * W positions, with a learned temperature; the
+    output is the softmax-weighted mean of the pixel coordinates, in [-1, 1] (x left to right,
+    y top to bottom), interleaved as (x_1, y_1, x_2, y_2, ...). The coordinates are sub-pixel:
+    a keypoint can be located more finely than the map's grid.
+    """
+
+    def __init__(self, height: int, width: int) -> None:
+        super().__init__()
+        ys, xs = torch.meshgrid(
+            torch.linspace(-1.0, 1.0, height), torch.linspace(-1.0, 1.0, width), indexing="ij"
+        )
+        self.register_buffer("grid", torch.stack([xs.flatten(), ys.flatten()], dim=1))
+        self.log_temperature = nn.Parameter(torch.zeros(()))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        logits = features.flatten(2) / self.log_temperature.exp()  # (N, C, H * W)
+        attention = torch.softmax(logits, dim=-1)
+        return (attention @ self.grid).flatten(1)  # (N, C, 2) -> (N, 2C)
+
+
 def _conv_stack(config: EncoderConfig) -> nn.Sequential:
     layers: list[nn.Module] = []
     channels = config.in_channels
     for stride in config.strides:
         layers += [nn.Conv2d(channels, config.num_channels, config.kernel_size, stride), nn.ReLU()]
         channels = config.num_channels
+    if config.spatial_softmax:
+        # The softmax takes the last conv's signed responses, not their ReLU.
+        side = config.conv_output_side
+        layers[-1] = SpatialSoftmax(side, side)
     return nn.Sequential(*layers)
 
 
@@ -156,14 +192,14 @@ class MultiViewEncoder(nn.Module):
         self.norm = nn.LayerNorm(config.feature_dim) if config.output_layer_norm else None
 
     def conv_trunk(self, images: torch.Tensor) -> torch.Tensor:
-        """Per-view flattened conv features.
+        """Per-view conv features (flattened maps, or keypoints with ``spatial_softmax``).
 
         Args:
             images: (B, V, C, H, W) uint8 in [0, 255] (scaled by 1/255 here), or floating
                 already in [0, 1]; H = W = ``config.image_size``.
 
         Returns:
-            (B, V, F) float32, F = ``config.view_feature_dim`` (ReLU outputs).
+            (B, V, F) float32, F = ``config.view_feature_dim``.
         """
         cfg = self.config
         view_shape = (cfg.num_views, cfg.in_channels, cfg.image_size, cfg.image_size)

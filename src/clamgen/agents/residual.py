@@ -16,6 +16,10 @@ Paper, "Obstacle-Avoidance via a Learned Residual" and "Learned 3D fusion":
 - `obs_source="obstacles"` replaces the images by the obstacles' true poses (a privileged upper
   bound that trains fast); `residual=False` is the "no residual" ablation (plain SAC on the same
   inputs, no base policy or base Q).
+- Image-only policy (`use_low_dim=False`, the paper's Table 1 image rows): the networks see the
+  images alone. For training only, `privileged_critic` also gives the critic joints and goal
+  (asymmetric actor-critic) and `privileged_base_q` adds the frozen Q_base to it, so the actor
+  learns from a critic that already knows the task.
 
 `update()` reads as the recipe: augment, critic (+ encoder), auxiliary losses, actor and
 temperature, target updates.
@@ -79,6 +83,16 @@ class ResidualConfig:
     """Image-only policy (`use_low_dim=False`) with a critic that also sees joints and goal
     (an asymmetric actor-critic): the critic is used in training only, so the policy still acts
     from images alone. False: the critic sees what the policy sees."""
+    privileged_base_q: bool = False
+    """With `privileged_critic`: the critic is Q_base(joints, goal, a) + Q_res(images, joints,
+    goal, a) as in CLAMGen's residual, Q_res starting at zero, and the actor warms up on Q_base.
+    The stage-1 critic thus tells the image-only actor from its first update which actions reach
+    the goal; the policy still has no base action and acts from images alone."""
+    encoder_from_critic: bool = True
+    """The critic loss trains the encoder (CURL, SAC-AE, the paper). False: the critic reads the
+    visual encoding detached, so only the contrastive and state-regression losses train the
+    encoder; meant for a privileged critic, which sees the full state and whose gradients
+    would otherwise drown the state-regression signal that locates the target."""
     finetune_base: bool = False
     """Also update the base actor and base critic (the paper says it can)."""
     warmup_updates: int = 1_000
@@ -123,6 +137,22 @@ class ResidualConfig:
             raise ValueError("use_low_dim=False (image-only) needs residual=False and images")
         if self.privileged_critic and self.use_low_dim:
             raise ValueError("privileged_critic is for image-only agents (use_low_dim=False)")
+        if self.privileged_base_q and not self.privileged_critic:
+            raise ValueError("privileged_base_q needs privileged_critic (Q_base reads the state)")
+        aux = self.aux
+        if not self.encoder_from_critic and (
+            self.obs_source != "images"
+            or aux.curl_weight == aux.across_view_weight == aux.state_weight == 0
+        ):
+            raise ValueError(
+                "encoder_from_critic=False needs images and a contrastive or state-regression "
+                "loss (aux weights > 0) to train the encoder"
+            )
+
+    @property
+    def uses_base_q(self) -> bool:
+        """Whether the critic is Q_base + Q_res (the residual, or a privileged base Q)."""
+        return self.residual or self.privileged_base_q
 
     @property
     def stored_image_size(self) -> int:
@@ -248,7 +278,7 @@ class ResidualAgent:
                 enc.low_dim_size,
                 action_dim,
                 config.hidden_sizes,
-                config.residual,
+                config.uses_base_q,
             )
             self.actor = ResidualActor(
                 feature_dim,
@@ -350,7 +380,7 @@ class ResidualAgent:
 
     def _q(self, critic: ResidualCritic, base_critic, latent, low_dim, action) -> torch.Tensor:
         q = critic(latent, action)
-        if self.config.residual:
+        if self.config.uses_base_q:
             q = q + base_critic(low_dim, action)
         return q
 
@@ -383,7 +413,8 @@ class ResidualAgent:
             visual = self.critic.encoder.merge(x.view_features, x.view_mask)
         else:
             visual = self.critic.encoder(x.visual_in)
-        latent, visual = self.critic.fuse(visual, x.low_dim)
+        critic_visual = visual if cfg.encoder_from_critic else visual.detach()
+        latent, _ = self.critic.fuse(critic_visual, x.low_dim)
         metrics = self._critic_and_aux_step(latent, visual, x)
         metrics |= self._actor_and_temperature_step(visual.detach(), latent.detach(), x)
         soft_update(self.critic_target, self.critic, cfg.tau)
@@ -492,7 +523,7 @@ class ResidualAgent:
     def _actor_and_temperature_step(self, visual, latent, x: _TrainInputs) -> dict[str, float]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
-        warming_up = cfg.residual and self.num_updates < cfg.warmup_updates
+        warming_up = cfg.uses_base_q and self.num_updates < cfg.warmup_updates
         for module in (self.critic, self.base_critic):
             module.requires_grad_(False)
         try:
