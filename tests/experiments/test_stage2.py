@@ -1,6 +1,7 @@
 """Stage 2 end to end on tiny budgets: privileged poses and images with re-rendered HER."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -162,3 +163,39 @@ def test_image_only_policy_evaluates_as_the_image_rows_of_table1(tmp_path, base_
     assert len(rows) == 1 and 0 <= rows[0].success_rate <= 1 and rows[0].median_act_ms > 0
     assert '"observation": "images"' in out.with_suffix(".json").read_text()
     assert "| 1.160 |" in out.with_suffix(".md").read_text()  # the paper's image row, 10 cm/s
+
+
+def test_encoder_pretraining_reads_the_state_and_hands_the_encoder_to_rl(tmp_path, base_policy):
+    from clamgen.experiments.stage2 import EncoderPretrainConfig
+
+    config = image_config(tmp_path, base_policy)
+    pretrain = EncoderPretrainConfig(scenes=200, held_out_scenes=50, steps=150, lr=3e-3)
+    config = dataclasses.replace(
+        config,
+        env=dataclasses.replace(config.env, env_id="CLAMGen/Reach-v0"),
+        agent=dataclasses.replace(
+            config.agent, residual=False, use_low_dim=False, privileged_critic=True
+        ),
+        loop=dataclasses.replace(LOOP, total_env_steps=40),
+        pretrain=pretrain,
+    )
+    trainer = Stage2Trainer(config)
+    before = [p.detach().clone() for p in trainer.agent.critic.encoder.parameters()]
+    trainer.start_or_resume()
+    summary = json.loads((config.run_dir / "pretrain.json").read_text())
+    assert summary["after/joint_error_rad"] < 0.8 * summary["before/joint_error_rad"]
+    agent = trainer.agent
+    encoder = agent.critic.encoder.state_dict()
+    assert any(not np.array_equal(a, b) for a, b in zip(before, encoder.values(), strict=True))
+    for copy in (agent.critic_target.encoder, agent.key_encoder):
+        for key, value in copy.state_dict().items():
+            np.testing.assert_array_equal(value, encoder[key])
+    trainer.run(show_progress=False)
+    with pytest.raises(ValueError, match="pretrain"):
+        dataclasses.replace(
+            config,
+            agent=dataclasses.replace(
+                image_config(tmp_path, base_policy).agent, obs_source="obstacles"
+            ),
+            env=dataclasses.replace(config.env, include_obstacle_state=True),
+        )

@@ -30,7 +30,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -383,6 +383,52 @@ class ResidualAgent:
         if self.config.uses_base_q:
             q = q + base_critic(low_dim, action)
         return q
+
+    # ---------------------------------------------------------------- pretrain
+    def pretrain_encoder(
+        self,
+        obs: Mapping[str, Any],
+        steps: int,
+        batch_size: int,
+        lr: float,
+        on_step: Callable[[float], None] | None = None,
+    ) -> float:
+        """Supervised state regression before RL: the encoder and the state head learn to read
+        the joints and the goal from the images of `obs` (a batch of N observations with
+        `images` and the low-dim keys), on random crops as in training. The target and momentum
+        encoders are then set to the result. Returns the last step's loss (normalised MSE).
+
+        Uses the true state, like the state-regression loss; the policy still acts from images.
+        """
+        if self.config.obs_source != "images":
+            raise ValueError("pretrain_encoder needs image observations")
+        if steps < 1 or batch_size < 1 or not lr > 0:
+            raise ValueError(f"need steps, batch_size >= 1 and lr > 0, got {steps, batch_size, lr}")
+        images = torch.as_tensor(np.asarray(obs["images"]), device=self.device)
+        states = self._state(obs)
+        encoder = self.critic.encoder
+        optimizer = torch.optim.Adam([*encoder.parameters(), *self.state_head.parameters()], lr=lr)
+        crop = self.config.encoder.image_size
+        for _ in range(steps):
+            index = torch.randint(len(images), (batch_size,), generator=self._generator)
+            crops = random_crop(images[index.to(self.device)], crop, self._generator)
+            loss = F.mse_loss(self.state_head(encoder(crops)), states[index.to(self.device)])
+            value = _finite("pretrain/state_loss", loss)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            if on_step is not None:
+                on_step(value)
+        self.critic_target.encoder.load_state_dict(encoder.state_dict())
+        self.key_encoder.load_state_dict(encoder.state_dict())
+        return value
+
+    @torch.inference_mode()
+    def predict_state(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The state head's joints and goal (B, 9), unnormalised, from the centre crops."""
+        visual = self.critic.encoder(self._visual(obs, train=False))
+        state = self.state_head(visual) * self.normalizer.std + self.normalizer.mean32
+        return state.cpu().numpy()
 
     # --------------------------------------------------------------------- act
     @torch.inference_mode()
