@@ -143,6 +143,13 @@ def test_shipped_vision_policy_runs_out_of_the_box(tmp_path):
     assert 0 <= row.success_rate <= 1 and row.median_act_ms > 0
 
 
+def test_shipped_image_only_policy_acts_from_images_alone():
+    from clamgen.experiments.policies import load_policy, policy_observation
+
+    policy, _, env_kwargs = load_policy("image-only")
+    assert policy_observation(policy) == "images" and env_kwargs["num_views"] == 2
+
+
 def test_image_only_policy_evaluates_as_the_image_rows_of_table1(tmp_path, base_policy):
     config = image_config(tmp_path, base_policy)
     config = dataclasses.replace(

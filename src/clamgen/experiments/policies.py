@@ -8,7 +8,11 @@ from pathlib import Path
 from clamgen.policy import Policy
 
 # Policies shipped inside the package (clamgen/checkpoints/).
-SHIPPED_POLICIES = {"base": "base.pt", "residual-2views": "residual-2views.pt"}
+SHIPPED_POLICIES = {
+    "base": "base.pt",
+    "residual-2views": "residual-2views.pt",
+    "image-only": "image-only.pt",
+}
 BASELINES = ("ik", "rrt")
 
 
