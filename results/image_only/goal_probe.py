@@ -34,9 +34,7 @@ env = gym.make(
 )
 samples = [env.reset(seed=10_000 + i)[0] for i in range(200)]
 obs = {k: np.stack([o[k] for o in samples]) for k in samples[0]}
-with torch.no_grad():
-    visual = agent.critic.encoder(agent._visual(obs, train=False))
-    predicted = agent.state_head(visual) * agent.normalizer.std + agent.normalizer.mean32
+predicted = torch.as_tensor(agent.predict_state(obs))
 true = torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS))
 goal = true[:, 6:]
 print("env steps:", payload["progress"]["env_steps"])

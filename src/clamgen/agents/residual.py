@@ -410,9 +410,11 @@ class ResidualAgent:
         optimizer = torch.optim.Adam([*encoder.parameters(), *self.state_head.parameters()], lr=lr)
         crop = self.config.encoder.image_size
         for _ in range(steps):
-            index = torch.randint(len(images), (batch_size,), generator=self._generator)
-            crops = random_crop(images[index.to(self.device)], crop, self._generator)
-            loss = F.mse_loss(self.state_head(encoder(crops)), states[index.to(self.device)])
+            index = torch.randint(
+                len(images), (batch_size,), generator=self._generator, device=self.device
+            )
+            crops = random_crop(images[index], crop, self._generator)
+            loss = self._state_loss(encoder(crops), states[index])
             value = _finite("pretrain/state_loss", loss)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -422,6 +424,10 @@ class ResidualAgent:
         self.critic_target.encoder.load_state_dict(encoder.state_dict())
         self.key_encoder.load_state_dict(encoder.state_dict())
         return value
+
+    def _state_loss(self, visual: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """The state head's regression loss: MSE to the normalised joints + goal."""
+        return F.mse_loss(self.state_head(visual), state)
 
     @torch.inference_mode()
     def predict_state(self, obs: Mapping[str, Any]) -> np.ndarray:
@@ -531,7 +537,7 @@ class ResidualAgent:
             predicted = (logits.detach() > 0).float()
             metrics["train/collision_accuracy"] = (predicted == x.collided).float().mean().item()
         if aux.state_weight > 0:
-            state_loss = F.mse_loss(self.state_head(visual), x.state)
+            state_loss = self._state_loss(visual, x.state)
             loss = loss + aux.state_weight * state_loss
             metrics["train/state_loss"] = _finite("train/state_loss", state_loss)
         if cfg.obs_source == "images" and (aux.curl_weight > 0 or aux.across_view_weight > 0):
