@@ -21,7 +21,6 @@ from clamgen.experiments.config import (
     load_preset,
 )
 from clamgen.experiments.train import (
-    CHECKPOINT_NAME,
     POLICY_NAME,
     Trainer,
     load_policy_agent,
@@ -65,7 +64,7 @@ def test_run_directory_has_config_metrics_events_checkpoint_and_policy(tmp_path)
     names = {line.split(",")[2] for line in metrics[1:]}
     assert {"train/critic_loss", "train/alpha", "rollout/episodes", "eval/success_rate"} <= names
     assert any((run / "tensorboard").iterdir())
-    assert (run / "checkpoints" / CHECKPOINT_NAME).exists()
+    assert ckpt.latest_state_path(run / "checkpoints").exists()
     assert 0.0 <= summary["eval/success_rate"] <= 1.0
     agent, loaded_config = load_policy_agent(run / POLICY_NAME)
     assert loaded_config == config
@@ -119,7 +118,9 @@ def test_nan_loss_stops_with_a_clear_message_and_keeps_the_last_checkpoint(tmp_p
     trainer.agent.update = update
     with pytest.raises(SystemExit, match=r"critic_loss is nan.*intact"):
         trainer.run(show_progress=False)
-    saved = ckpt.load_torch(config.run_dir / "checkpoints" / CHECKPOINT_NAME, ckpt.TRAINING_KIND)
+    saved = ckpt.load_torch(
+        ckpt.latest_state_path(config.run_dir / "checkpoints"), ckpt.TRAINING_KIND
+    )
     assert saved["stamp"] == 100
 
 
@@ -138,7 +139,7 @@ def test_missing_truncated_and_foreign_checkpoints_are_named(tmp_path):
     with pytest.raises(ckpt.CheckpointError, match="not a clamgen checkpoint"):
         load_policy_agent(foreign)
     with pytest.raises(ckpt.CheckpointError, match="expected a 'sac-policy'"):
-        load_policy_agent(config.run_dir / "checkpoints" / CHECKPOINT_NAME)
+        load_policy_agent(ckpt.latest_state_path(config.run_dir / "checkpoints"))
     # A policy file whose weights do not match its config.
     payload = torch.load(policy, weights_only=True)
     payload["agent"]["actor"] = {k: v[:1] for k, v in payload["agent"]["actor"].items()}

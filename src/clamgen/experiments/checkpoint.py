@@ -1,8 +1,21 @@
 """Checkpoints: resumable training state and small policy files, loaded with `weights_only`.
 
-A training checkpoint is two files written atomically (temporary file, then rename):
-`latest.pt` (agent, progress, random states, config) and `latest_replay.npz` (the replay
-buffer and the environments' episodes in progress), both stamped with the same env-step count.
+A training checkpoint is one directory, `checkpoints/ckpt-<generation>/`, written under a
+temporary name and published by a single rename, so a kill at any instant leaves either the
+whole new checkpoint or none of it (`CheckpointStore`). It holds
+
+- `state.pt`: agent, progress, random states, config (torch, tensors only);
+- `episodes.npz`: the environments' episodes in progress and the replay's counters;
+- `replay/block-<b>.npz`: the replay's arrays in blocks of consecutive slots
+  (`ReplayBuffer.block_arrays`). Only blocks changed since the previous checkpoint are
+  written; the others are hard links to the previous checkpoint's files, so a checkpoint of a
+  large image replay writes what was added since the last one, not the whole replay;
+- `manifest.json`: the step, and the size and CRC-32 of every file above.
+
+The previous checkpoint is removed only after the new one is published. A resume verifies the
+newest checkpoint against its manifest and, if it is damaged, falls back to the previous one and
+says so in one line.
+
 A policy file (`export_policy`) holds what acting and stage 2 need: actor, critic, normaliser
 and the config, a few hundred kB.
 
@@ -11,10 +24,16 @@ Nothing is pickled: `torch.load(..., weights_only=True)` and `numpy.load(allow_p
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
+import sys
 import tempfile
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import torch
@@ -26,6 +45,10 @@ POLICY_KIND = "sac-policy"
 
 class CheckpointError(ValueError):
     """A checkpoint is missing, truncated, corrupt, or does not match what loads it."""
+
+
+class DamagedCheckpointError(CheckpointError):
+    """A checkpoint directory's files are missing, truncated or differ from its manifest."""
 
 
 def atomic_write(path: Path, write) -> None:
@@ -97,3 +120,290 @@ def load_agent_state(agent, state: dict[str, Any], source: Path) -> None:
             f"{source} does not match this agent's configuration (network sizes, observation "
             f"keys or action size differ): {error}"
         ) from error
+
+
+# ------------------------------------------------------------------ training checkpoints
+CHECKPOINT_PREFIX = "ckpt-"
+MANIFEST_NAME = "manifest.json"
+STATE_NAME = "state.pt"
+EPISODES_NAME = "episodes.npz"
+REPLAY_DIR = "replay"
+REPLAY_COUNTERS = "replay/counters"
+# The two-file format written before checkpoint directories; still resumed from.
+LEGACY_STATE_NAME = "latest.pt"
+LEGACY_REPLAY_NAME = "latest_replay.npz"
+_READ_CHUNK = 16 * 2**20
+
+
+@dataclass
+class LoadedCheckpoint:
+    """What `CheckpointStore.load` read besides the replay (which it loads in place)."""
+
+    path: Path
+    """The checkpoint directory (or, for the legacy format, its `latest.pt`)."""
+    payload: dict[str, Any]
+    """The contents of `state.pt`."""
+    arrays: dict[str, np.ndarray]
+    """The contents of `episodes.npz` without the replay's counters."""
+
+
+class CheckpointStore:
+    """The checkpoints of one run directory: `save` publishes a new one, `load` resumes from the
+    newest good one. The replay is any object with the block interface of
+    `clamgen.replay.ReplayBuffer` (`num_blocks`, `block_arrays`, `changed_blocks`, ...)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = Path(directory)
+        self._previous: Path | None = None  # the last good checkpoint, kept by the next save
+        # Manifest whose replay blocks equal the replay's unchanged blocks (hard-link source).
+        self._link_source: tuple[Path, dict[str, Any]] | None = None
+
+    def published(self) -> list[Path]:
+        """Published checkpoint directories, newest first."""
+        if not self.directory.is_dir():
+            return []
+        found = [
+            p
+            for p in self.directory.iterdir()
+            if p.name.startswith(CHECKPOINT_PREFIX) and _generation(p) is not None
+        ]
+        return sorted(found, key=_generation, reverse=True)
+
+    def exists(self) -> bool:
+        """Whether there is anything to resume from (in either format)."""
+        return bool(self.published()) or (self.directory / LEGACY_STATE_NAME).exists()
+
+    # ----------------------------------------------------------------------- save
+    def save(self, payload: dict[str, Any], arrays: dict[str, np.ndarray], replay) -> Path:
+        """Write a checkpoint of `payload` (must hold `stamp`, the env-step count), `arrays`
+        (small numpy arrays) and `replay`, publish it, then remove older ones but the last good
+        one. Returns the published directory."""
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._remove_debris()
+        existing = self.published()
+        generation = 1 + (_generation(existing[0]) if existing else 0)
+        final = self.directory / f"{CHECKPOINT_PREFIX}{generation:06d}"
+        tmp = self.directory / f".{final.name}.tmp"
+        (tmp / REPLAY_DIR).mkdir(parents=True)
+        files = {
+            STATE_NAME: _write_file(tmp / STATE_NAME, lambda f: torch.save(payload, f)),
+            EPISODES_NAME: _write_file(
+                tmp / EPISODES_NAME,
+                lambda f: np.savez(f, **arrays, **{REPLAY_COUNTERS: replay.counters()}),
+            ),
+        }
+        changed = set(replay.changed_blocks())
+        source_dir, source = self._link_source or (None, None)
+        if source is not None and source["slots_per_block"] != replay.slots_per_block:
+            source = None
+        for block in range(replay.num_blocks):
+            name = _block_name(block)
+            if block not in changed and source is not None and name in source["files"]:
+                _link_or_copy(source_dir / name, tmp / name)
+                files[name] = source["files"][name]
+            else:
+                block_arrays = replay.block_arrays(block)
+                files[name] = _write_file(tmp / name, lambda f, a=block_arrays: np.savez(f, **a))
+        manifest = {
+            "format": FORMAT,
+            "kind": TRAINING_KIND,
+            "generation": generation,
+            "stamp": int(payload["stamp"]),
+            "slots_per_block": int(replay.slots_per_block),
+            "replay_blocks": int(replay.num_blocks),
+            "files": files,
+        }
+        _write_file(tmp / MANIFEST_NAME, lambda f: f.write(json.dumps(manifest).encode()))
+        _fsync_dir(tmp / REPLAY_DIR)
+        _fsync_dir(tmp)
+        os.rename(tmp, final)  # the single step that publishes the checkpoint
+        _fsync_dir(self.directory)
+        replay.mark_saved()
+        keep = {final, self._previous}
+        self._previous, self._link_source = final, (final, manifest)
+        for old in self.published():
+            if old not in keep:
+                _remove_dir(old)
+        return final
+
+    # ----------------------------------------------------------------------- load
+    def load(self, replay, check: Callable[[dict[str, Any], Path], None]) -> LoadedCheckpoint:
+        """Resume from the newest checkpoint that is intact: verify it against its manifest,
+        call `check(payload, path)` (which raises `CheckpointError` when the checkpoint does not
+        belong to this run; that is not damage and stops the resume), load the replay in place
+        a block at a time (never a second copy of it) and return the rest. A damaged checkpoint
+        is skipped for the one before it, with a one-line note on stderr."""
+        candidates = self.published()
+        if not candidates:
+            return self._load_legacy(replay, check)
+        damaged: list[str] = []
+        for path in candidates:
+            try:
+                loaded = self._load_dir(path, replay, check)
+            except DamagedCheckpointError as error:
+                damaged.append(f"{path.name} is damaged ({error})")
+                continue
+            if damaged:
+                print(
+                    f"checkpoint {'; '.join(damaged)}: resumed from {path.name} "
+                    f"(step {loaded.payload['stamp']}) instead",
+                    file=sys.stderr,
+                )
+            return loaded
+        raise CheckpointError(
+            f"no intact checkpoint in {self.directory}: {'; '.join(damaged)}; move the directory "
+            "away to start the run again"
+        )
+
+    def _load_dir(self, path: Path, replay, check) -> LoadedCheckpoint:
+        manifest = _verified_manifest(path)
+        payload = _damage_if_unreadable(lambda: load_torch(path / STATE_NAME, TRAINING_KIND))
+        if payload.get("stamp") != manifest["stamp"]:
+            raise DamagedCheckpointError(
+                f"{STATE_NAME} is of step {payload.get('stamp')}, the manifest of step "
+                f"{manifest['stamp']}"
+            )
+        check(payload, path)
+        arrays = _damage_if_unreadable(lambda: load_npz(path / EPISODES_NAME))
+        counters = arrays.pop(REPLAY_COUNTERS)
+        slots_per_block = manifest["slots_per_block"]
+        try:
+            for block in range(manifest["replay_blocks"]):
+                blocks = _damage_if_unreadable(lambda b=block: load_npz(path / _block_name(b)))
+                replay.load_slots(block * slots_per_block, blocks)
+                del blocks
+            replay.set_counters(counters)
+        except ValueError as error:
+            raise CheckpointError(f"{path} does not fit this run's replay: {error}") from error
+        if slots_per_block == replay.slots_per_block:
+            replay.mark_saved()
+            self._link_source = (path, manifest)
+        self._previous = path
+        return LoadedCheckpoint(path, payload, arrays)
+
+    def _load_legacy(self, replay, check) -> LoadedCheckpoint:
+        path = self.directory / LEGACY_STATE_NAME
+        if not path.exists():
+            raise CheckpointError(f"no checkpoint in {self.directory}")
+        payload = load_torch(path, TRAINING_KIND)
+        check(payload, path)
+        arrays = load_npz(self.directory / LEGACY_REPLAY_NAME)
+        if int(arrays.pop("stamp")) != payload["stamp"]:
+            raise CheckpointError(
+                f"{LEGACY_REPLAY_NAME} and {LEGACY_STATE_NAME} in {self.directory} are of "
+                "different steps; this old-format checkpoint cannot be resumed"
+            )
+        prefix = "buffer/"
+        state = {k[len(prefix) :]: arrays.pop(k) for k in list(arrays) if k.startswith(prefix)}
+        try:
+            replay.load_state_dict(state)
+        except (KeyError, ValueError) as error:
+            raise CheckpointError(f"{path} does not fit this run's replay: {error}") from error
+        return LoadedCheckpoint(path, payload, arrays)
+
+    def _remove_debris(self) -> None:
+        """Temporary directories of saves that were killed, and half-removed old checkpoints."""
+        for path in self.directory.iterdir():
+            if path.name.startswith(".") and path.name.endswith((".tmp", ".trash")):
+                if path.is_dir():
+                    shutil.rmtree(path, ignore_errors=True)
+                else:
+                    path.unlink(missing_ok=True)
+
+
+def latest_state_path(directory: Path) -> Path:
+    """`state.pt` of the newest checkpoint in a run's checkpoint directory (for reading the
+    agent without resuming; not verified)."""
+    directory = Path(directory)
+    published = CheckpointStore(directory).published()
+    if published:
+        return published[0] / STATE_NAME
+    if (directory / LEGACY_STATE_NAME).exists():
+        return directory / LEGACY_STATE_NAME
+    raise CheckpointError(f"no checkpoint in {directory}")
+
+
+def _generation(path: Path) -> int | None:
+    suffix = path.name[len(CHECKPOINT_PREFIX) :]
+    return int(suffix) if suffix.isdigit() else None
+
+
+def _block_name(block: int) -> str:
+    return f"{REPLAY_DIR}/block-{block:06d}.npz"
+
+
+def _write_file(path: Path, write: Callable[[BinaryIO], Any]) -> dict[str, int]:
+    """Write, flush to disk, and return the file's size and CRC-32 (read back)."""
+    with path.open("wb") as f:
+        write(f)
+        f.flush()
+        os.fsync(f.fileno())
+    return {"bytes": path.stat().st_size, "crc32": _crc32(path)}
+
+
+def _crc32(path: Path) -> int:
+    crc = 0
+    with path.open("rb") as f:
+        while chunk := f.read(_READ_CHUNK):
+            crc = zlib.crc32(chunk, crc)
+    return crc
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _link_or_copy(source: Path, target: Path) -> None:
+    """A hard link (no data copied); a copy on file systems without hard links."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copyfile(source, target)
+        with target.open("rb") as f:
+            os.fsync(f.fileno())
+
+
+def _remove_dir(path: Path) -> None:
+    """Rename away first, so that a kill during the removal leaves no half checkpoint under a
+    published name."""
+    trash = path.with_name(f".{path.name}.trash")
+    os.rename(path, trash)
+    shutil.rmtree(trash, ignore_errors=True)
+
+
+def _verified_manifest(path: Path) -> dict[str, Any]:
+    try:
+        manifest = json.loads((path / MANIFEST_NAME).read_text())
+        files = manifest["files"]
+        int(manifest["stamp"]), int(manifest["slots_per_block"]), int(manifest["replay_blocks"])
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise DamagedCheckpointError(f"{MANIFEST_NAME} unreadable: {error}") from error
+    if manifest.get("format") != FORMAT or manifest.get("kind") != TRAINING_KIND:
+        raise DamagedCheckpointError(f"{MANIFEST_NAME} is not a clamgen training checkpoint's")
+    for name, expected in files.items():
+        file = path / name
+        if not file.is_file():
+            raise DamagedCheckpointError(f"{name} is missing")
+        size = file.stat().st_size
+        if size != expected["bytes"]:
+            raise DamagedCheckpointError(f"{name} has {size} bytes, expected {expected['bytes']}")
+        if _crc32(file) != expected["crc32"]:
+            raise DamagedCheckpointError(f"{name} fails its CRC-32 check")
+    missing = {STATE_NAME, EPISODES_NAME} | {
+        _block_name(b) for b in range(manifest["replay_blocks"])
+    }
+    if missing - set(files):
+        raise DamagedCheckpointError(f"the manifest lacks {sorted(missing - set(files))[0]}")
+    return manifest
+
+
+def _damage_if_unreadable(read: Callable[[], Any]) -> Any:
+    """A file that passed its CRC but still cannot be read counts as damage too."""
+    try:
+        return read()
+    except CheckpointError as error:
+        raise DamagedCheckpointError(str(error)) from error

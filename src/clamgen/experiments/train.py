@@ -4,7 +4,9 @@ The loop, per iteration: every env takes one step with the current policy (unifo
 actions before `learning_starts`), finished episodes go into the replay buffer (which adds the
 reversible-HER episodes of failed ones), then `updates_per_step` gradient updates per env step.
 Metrics go to `metrics.csv` and TensorBoard; checkpoints resume exactly, including the episodes
-in progress, after a crash (the last periodic checkpoint) or Ctrl-C (a checkpoint at once).
+in progress, after a crash (the last periodic checkpoint) or Ctrl-C (a checkpoint at once). A
+resume drops the metrics logged after its checkpoint, so every (step, metric) pair is logged
+once. Checkpoints survive a kill at any instant (`clamgen.experiments.checkpoint`).
 """
 
 from __future__ import annotations
@@ -37,13 +39,18 @@ from clamgen.experiments.config import (
     from_dict,
 )
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
-from clamgen.replay import EpisodeRecorder, ReplayBuffer, obs_spec_from_space
+from clamgen.replay import (
+    EpisodeRecorder,
+    ReplayBuffer,
+    available_memory_bytes,
+    nbytes_required,
+    obs_spec_from_space,
+)
+from clamgen.replay.buffer import BLOCK_BYTES
 from clamgen.sim.scene import Obstacles
 from clamgen.sim.state import SimState
 from clamgen.tasks.reach import Task
 
-CHECKPOINT_NAME = "latest.pt"
-REPLAY_NAME = "latest_replay.npz"
 POLICY_NAME = "policy.pt"
 # What a policy file keeps of the agent's state: acting needs the actor and normaliser, stage 2
 # the critic as the frozen base Q-function.
@@ -63,19 +70,26 @@ def make_env(config: EnvConfig) -> gym.Env:
     return gym.make(config.env_id)
 
 
-class MetricLogger:
-    """Scalars to `metrics.csv` (long format: step, wall_time_s, metric, value) and TensorBoard."""
+METRICS_HEADER = ["step", "wall_time_s", "metric", "value"]
 
-    def __init__(self, run_dir: Path) -> None:
+
+class MetricLogger:
+    """Scalars to `metrics.csv` (long format: step, wall_time_s, metric, value) and TensorBoard.
+
+    `resume_step` is the step of the checkpoint the run continues from (None: a fresh start).
+    What was logged after it, by the attempt that died, is dropped: `metrics.csv` keeps its rows
+    up to that step and TensorBoard hides later events (`purge_step`), so each (step, metric)
+    pair appears once. A checkpoint is always written after every row of its step."""
+
+    def __init__(self, run_dir: Path, resume_step: int | None) -> None:
         from torch.utils.tensorboard import SummaryWriter
 
         self.path = run_dir / "metrics.csv"
-        new = not self.path.exists()
+        truncate_metrics(self.path, -1 if resume_step is None else resume_step)
         self._file = self.path.open("a", newline="")
         self._csv = csv.writer(self._file)
-        if new:
-            self._csv.writerow(["step", "wall_time_s", "metric", "value"])
-        self._tb = SummaryWriter(str(run_dir / "tensorboard"))
+        purge_step = 0 if resume_step is None else resume_step + 1
+        self._tb = SummaryWriter(str(run_dir / "tensorboard"), purge_step=purge_step)
 
     def log(self, step: int, wall_time_s: float, metrics: dict[str, float]) -> None:
         for key, value in metrics.items():
@@ -88,6 +102,28 @@ class MetricLogger:
         self._tb.close()
 
 
+def truncate_metrics(path: Path, last_step: int) -> None:
+    """Keep the header and the rows of steps <= `last_step` of a `metrics.csv` (replaced
+    atomically; created with its header if missing)."""
+    rows: list[list[str]] = []
+    if path.exists():
+        with path.open(newline="") as f:
+            rows = [row for row in list(csv.reader(f))[1:] if row and _step(row) <= last_step]
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="") as f:
+            csv.writer(f).writerows([METRICS_HEADER, *rows])
+
+    ckpt.atomic_write(path, write)
+
+
+def _step(row: list[str]) -> int:
+    try:
+        return int(row[0])
+    except ValueError:  # a row cut short by a kill
+        return 2**62
+
+
 @dataclasses.dataclass
 class Progress:
     """Counters that a checkpoint carries over."""
@@ -98,6 +134,8 @@ class Progress:
     updates_owed: float = 0.0
     wall_time_s: float = 0.0
     best_eval_success: float = -1.0
+    last_eval: dict[str, float] = dataclasses.field(default_factory=dict)
+    """The latest evaluation summary, so that a resume at the end does not evaluate again."""
 
 
 class Trainer:
@@ -109,11 +147,13 @@ class Trainer:
         torch.set_num_threads(loop.torch_threads)
         self.run_dir = Path(config.run_dir)
         self.checkpoint_dir = self.run_dir / "checkpoints"
+        self.checkpoints = ckpt.CheckpointStore(self.checkpoint_dir)
         self.envs = [make_env(config.env) for _ in range(config.env.num_envs)]
         self.eval_env = make_env(config.env)
         probe = self.envs[0]
         # The loop seed seeds everything, the agent included.
         self.agent = self.make_agent(probe)
+        self.memory_need_bytes = self._check_memory(probe)
         self.buffer = ReplayBuffer(
             config.replay,
             obs_spec_from_space(probe.observation_space),
@@ -126,6 +166,38 @@ class Trainer:
         self.obs: list[dict[str, np.ndarray]] = []
         self.recorders: list[EpisodeRecorder] = []
         self._resumed: bool | None = None  # set by start_or_resume()
+        self.resumed_from_step: int | None = None
+
+    def _check_memory(self, probe: gym.Env) -> int:
+        """Print what the run needs at its peak (the replay, plus what saving or resuming a
+        checkpoint holds besides it) and refuse to start when it would not fit."""
+        replay = self.config.replay
+        spec = obs_spec_from_space(probe.observation_space)
+        action_dim = int(np.prod(probe.action_space.shape))
+        replay_bytes = nbytes_required(replay, spec, action_dim)
+        slot_bytes = replay_bytes // replay.capacity
+        # Saving: the episodes in progress as arrays, one replay block being written (numpy's
+        # zip writer copies in chunks of at most a block), the agent's state. Resuming: one
+        # replay block read at a time, the agent's state read then copied into the networks.
+        horizon = getattr(probe.unwrapped, "max_episode_steps", None) or 100
+        episodes_bytes = len(self.envs) * (horizon + 1) * slot_bytes
+        agent_bytes = _nbytes(self.agent.state_dict())
+        checkpoint_bytes = 2 * min(BLOCK_BYTES, replay_bytes) + episodes_bytes + 2 * agent_bytes
+        need = replay_bytes + checkpoint_bytes
+        available = available_memory_bytes()
+        print(
+            f"memory: {need / 2**30:.2f} GiB at peak (replay {replay_bytes / 2**30:.2f} GiB, "
+            f"checkpoint save/resume {checkpoint_bytes / 2**30:.2f} GiB); "
+            f"{available / 2**30:.2f} GiB available"
+        )
+        if need > replay.max_memory_fraction * available:
+            raise ValueError(
+                f"this run needs {need / 2**30:.2f} GiB at peak (replay capacity "
+                f"{replay.capacity}: {replay_bytes / 2**30:.2f} GiB), more than "
+                f"{replay.max_memory_fraction:.0%} of the {available / 2**30:.2f} GiB available; "
+                "lower replay.capacity"
+            )
+        return need
 
     def make_agent(self, probe: gym.Env):
         """The agent to train (stage 2 overrides this)."""
@@ -151,7 +223,7 @@ class Trainer:
     def _start_or_resume(self) -> bool:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         config_path = self.run_dir / "config.json"
-        if (self.checkpoint_dir / CHECKPOINT_NAME).exists():
+        if self.checkpoints.exists():
             self._load_checkpoint()
             return True
         config_path.write_text(config_to_json(self.config))
@@ -166,7 +238,7 @@ class Trainer:
         """Train to `loop.total_env_steps`; returns the last evaluation's summary."""
         loop = self.config.loop
         resumed = self.start_or_resume()
-        logger = MetricLogger(self.run_dir)
+        logger = MetricLogger(self.run_dir, self.resumed_from_step)
         bar = tqdm(
             total=loop.total_env_steps,
             initial=self.progress.env_steps,
@@ -176,7 +248,7 @@ class Trainer:
             dynamic_ncols=True,
         )
         start = time.perf_counter() - self.progress.wall_time_s
-        last_eval: dict[str, float] = {}
+        last_eval: dict[str, float] = dict(self.progress.last_eval)
         train_metrics: dict[str, float] = {}
         self.stop_requested = False
         previous_handler = _install_interrupt_handler(self)
@@ -306,18 +378,17 @@ class Trainer:
         self.progress.best_eval_success = max(
             self.progress.best_eval_success, summary["eval/success_rate"]
         )
+        self.progress.last_eval = summary
         return summary
 
     # --------------------------------------------------------------- checkpoints
     def save_checkpoint(self) -> None:
-        """Write the resumable state (replay snapshot first, then the torch file)."""
+        """Write and publish the resumable state (`checkpoint.CheckpointStore.save`)."""
         stamp = self.progress.env_steps
-        arrays = {f"buffer/{k}": v for k, v in self.buffer.state_dict().items()}
+        arrays: dict[str, np.ndarray] = {}
         for i, env in enumerate(self.envs):
             arrays |= {f"env{i}/{k}": v for k, v in _env_snapshot(env).items()}
             arrays |= {f"recorder{i}/{k}": v for k, v in self.recorders[i].arrays().items()}
-        arrays["stamp"] = np.array(stamp)
-        ckpt.save_npz(self.checkpoint_dir / REPLAY_NAME, arrays)
         payload = {
             "format": ckpt.FORMAT,
             "kind": ckpt.TRAINING_KIND,
@@ -328,11 +399,9 @@ class Trainer:
             "rng": json.dumps(self.rng.bit_generator.state),
             "recent_successes": [bool(s) for s in self.recent_successes],
         }
-        ckpt.save_torch(self.checkpoint_dir / CHECKPOINT_NAME, payload)
+        self.checkpoints.save(payload, arrays, self.buffer)
 
-    def _load_checkpoint(self) -> None:
-        path = self.checkpoint_dir / CHECKPOINT_NAME
-        payload = ckpt.load_torch(path, ckpt.TRAINING_KIND)
+    def _check_checkpoint(self, payload: dict[str, Any], path: Path) -> None:
         saved = config_from_json(payload["config"], type(self.config))
         if _without_budget(saved) != _without_budget(self.config):
             raise ckpt.CheckpointError(
@@ -340,17 +409,15 @@ class Trainer:
                 f"config ({self.run_dir / 'config.json'}) or choose a new run_dir. Only "
                 "loop.total_env_steps may change on resume."
             )
-        arrays = ckpt.load_npz(self.checkpoint_dir / REPLAY_NAME)
-        if int(arrays["stamp"]) != payload["stamp"]:
-            raise ckpt.CheckpointError(
-                f"{REPLAY_NAME} (step {int(arrays['stamp'])}) and {CHECKPOINT_NAME} "
-                f"(step {payload['stamp']}) do not belong together"
-            )
-        ckpt.load_agent_state(self.agent, payload["agent"], path)
+
+    def _load_checkpoint(self) -> None:
+        loaded = self.checkpoints.load(self.buffer, self._check_checkpoint)
+        payload, arrays = loaded.payload, loaded.arrays
+        ckpt.load_agent_state(self.agent, payload["agent"], loaded.path)
         self.progress = Progress(**payload["progress"])
+        self.resumed_from_step = self.progress.env_steps
         self.rng.bit_generator.state = json.loads(payload["rng"])
         self.recent_successes.extend(payload["recent_successes"])
-        self.buffer.load_state_dict(_sub(arrays, "buffer/"))
         self.obs, self.recorders = [], []
         for i, env in enumerate(self.envs):
             _restore_env(env, _sub(arrays, f"env{i}/"))
@@ -417,6 +484,19 @@ def _restore_interrupt_handler(previous) -> None:
 def _without_budget(config: TrainConfig) -> str:
     loop = dataclasses.replace(config.loop, total_env_steps=1, stop_at_success=None)
     return config_to_json(dataclasses.replace(config, loop=loop, run_dir=Path(".")))
+
+
+def _nbytes(state: Any) -> int:
+    """Bytes of the tensors and arrays in a (nested) state dict."""
+    if isinstance(state, torch.Tensor):
+        return state.numel() * state.element_size()
+    if isinstance(state, np.ndarray):
+        return state.nbytes
+    if isinstance(state, dict):
+        return sum(_nbytes(v) for v in state.values())
+    if isinstance(state, (list, tuple)):
+        return sum(_nbytes(v) for v in state)
+    return 0
 
 
 def _sub(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:

@@ -36,6 +36,10 @@ ObsSpec = Mapping[str, tuple[tuple[int, ...], np.dtype]]
 # episode's first and last slot (2 x int64), and whether the slot starts a transition (bool).
 _BOOKKEEPING_BYTES_PER_SLOT = 1 + 8 + 8 + 1
 _NO_EPISODE = -1
+# Checkpoints save the arrays in blocks of consecutive slots of about this size, and only the
+# blocks changed since the previous checkpoint (`changed_blocks`); big enough that a 100k-slot
+# image replay has a few hundred files, small enough that a checkpoint rewrites little.
+BLOCK_BYTES = 8 * 2**20
 
 
 @dataclass(frozen=True)
@@ -150,6 +154,10 @@ class ReplayBuffer:
         self._high_water = 0  # slots [0, high_water) have been written at least once
         self._num_transitions = 0
         self._num_episodes = 0
+        bytes_per_slot = nbytes_required(config, obs_spec, action_dim) // capacity
+        self.slots_per_block = max(1, BLOCK_BYTES // bytes_per_slot)
+        """Slots per checkpoint block (`block_arrays`)."""
+        self._changed = np.ones(math.ceil(capacity / self.slots_per_block), bool)
 
     def __len__(self) -> int:
         """Number of stored transitions."""
@@ -193,6 +201,7 @@ class ReplayBuffer:
             self._cursor = 0
         start, stop = self._cursor, self._cursor + num_slots
         self._drop_overlapping(start, stop)
+        self._mark_changed(start, stop)
         for key, array in self._obs.items():
             array[start:stop] = episode.obs[key]
         self._action[start : stop - 1] = episode.actions
@@ -210,44 +219,108 @@ class ReplayBuffer:
         firsts = self._first[start:stop]
         for first in np.unique(firsts[firsts != _NO_EPISODE]):
             last = self._last[first]
+            self._mark_changed(first, last + 1)
             self._first[first : last + 1] = _NO_EPISODE
             self._last[first : last + 1] = _NO_EPISODE
             self._starts_transition[first : last + 1] = False
             self._num_transitions -= int(last - first)
             self._num_episodes -= 1
 
+    def _mark_changed(self, start: int, stop: int) -> None:
+        self._changed[start // self.slots_per_block : (stop - 1) // self.slots_per_block + 1] = True
+
     def state_dict(self) -> dict[str, np.ndarray]:
-        """The stored data as plain numpy arrays (for `numpy.savez`; no pickling needed)."""
-        state = {f"obs/{key}": array[: self._high_water] for key, array in self._obs.items()}
-        state |= {
-            "action": self._action[: self._high_water],
-            "collision": self._collision[: self._high_water],
-            "first": self._first[: self._high_water],
-            "last": self._last[: self._high_water],
-            "starts_transition": self._starts_transition[: self._high_water],
-            "counters": np.array(
-                [self._cursor, self._high_water, self._num_transitions, self._num_episodes]
-            ),
-        }
+        """The stored data as plain numpy arrays (for `numpy.savez`; no pickling needed).
+
+        The arrays are views of the buffer's own (no copy); checkpoints of large buffers save
+        `block_arrays` instead, a block at a time."""
+        state = self._slot_arrays(0, self._high_water)
+        state["counters"] = self.counters()
         return state
 
     def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
         """Restore from :meth:`state_dict` into this buffer's (equally configured) arrays."""
-        cursor, high_water, num_transitions, num_episodes = (int(v) for v in state["counters"])
+        counters = state["counters"]
+        self._check_counters(counters)
+        self._load_slots(0, {k: v for k, v in state.items() if k != "counters"}, int(counters[1]))
+        self.set_counters(counters)
+        self._changed[:] = True
+
+    # ---------------------------------------------------------- checkpoint blocks
+    @property
+    def num_blocks(self) -> int:
+        """Blocks that hold written slots: block ``b`` is slots
+        ``[b * slots_per_block, min((b + 1) * slots_per_block, high_water))``."""
+        return math.ceil(self._high_water / self.slots_per_block)
+
+    def counters(self) -> np.ndarray:
+        """Cursor, high-water mark, transition and episode counts, (4,) int64."""
+        return np.array(
+            [self._cursor, self._high_water, self._num_transitions, self._num_episodes], np.int64
+        )
+
+    def set_counters(self, counters: np.ndarray) -> None:
+        """Set what :meth:`counters` returned, after the blocks were loaded."""
+        self._check_counters(counters)
+        cursor, high_water, num_transitions, num_episodes = (int(v) for v in counters)
+        self._cursor, self._high_water = cursor, high_water
+        self._num_transitions, self._num_episodes = num_transitions, num_episodes
+
+    def block_arrays(self, block: int) -> dict[str, np.ndarray]:
+        """The arrays of one block's written slots, as views (no copy)."""
+        start = block * self.slots_per_block
+        return self._slot_arrays(start, min(start + self.slots_per_block, self._high_water))
+
+    def changed_blocks(self) -> list[int]:
+        """Blocks with written slots changed since :meth:`mark_saved` (all before the first)."""
+        return [int(b) for b in np.flatnonzero(self._changed[: self.num_blocks])]
+
+    def mark_saved(self) -> None:
+        """Record that every block is saved as it is now (after a checkpoint)."""
+        self._changed[:] = False
+
+    def load_slots(self, start: int, arrays: Mapping[str, np.ndarray]) -> None:
+        """Copy saved slots (a :meth:`block_arrays` result, of any block size) into place from
+        slot ``start``; call :meth:`set_counters` once every block is in."""
+        stop = start + len(arrays["first"]) if "first" in arrays else start
+        if not 0 <= start <= stop <= self.config.capacity:
+            raise ValueError(
+                f"saved replay slots {start}-{stop} lie outside the capacity {self.config.capacity}"
+            )
+        self._load_slots(start, arrays, stop)
+
+    def _slot_arrays(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        arrays = {f"obs/{key}": array[start:stop] for key, array in self._obs.items()}
+        return arrays | {
+            "action": self._action[start:stop],
+            "collision": self._collision[start:stop],
+            "first": self._first[start:stop],
+            "last": self._last[start:stop],
+            "starts_transition": self._starts_transition[start:stop],
+        }
+
+    def _load_slots(self, start: int, arrays: Mapping[str, np.ndarray], stop: int) -> None:
+        targets = self._slot_arrays(start, stop)
+        if set(arrays) != set(targets):
+            raise ValueError(
+                f"saved replay arrays {sorted(arrays)} differ from this buffer's {sorted(targets)}"
+            )
+        for key, target in targets.items():
+            value = arrays[key]
+            if value.shape != target.shape or value.dtype != target.dtype:
+                raise ValueError(
+                    f"saved replay array {key!r} is {value.dtype}{list(value.shape)}, this "
+                    f"buffer expects {target.dtype}{list(target.shape)} for slots {start}-{stop}"
+                )
+            target[...] = value
+
+    def _check_counters(self, counters: np.ndarray) -> None:
+        high_water = int(counters[1])
         if high_water > self.config.capacity:
             raise ValueError(
                 f"saved buffer holds {high_water} slots, more than the capacity "
                 f"{self.config.capacity}"
             )
-        for key, array in self._obs.items():
-            array[:high_water] = state[f"obs/{key}"]
-        self._action[:high_water] = state["action"]
-        self._collision[:high_water] = state["collision"]
-        self._first[:high_water] = state["first"]
-        self._last[:high_water] = state["last"]
-        self._starts_transition[:high_water] = state["starts_transition"]
-        self._cursor, self._high_water = cursor, high_water
-        self._num_transitions, self._num_episodes = num_transitions, num_episodes
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         """Sample transitions uniformly, relabelling goals with probability ``her_ratio``.
