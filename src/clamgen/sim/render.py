@@ -226,6 +226,25 @@ class MultiViewRenderer:
             self._context.free()
             self._context = None
 
+    def __getstate__(self) -> dict:
+        """What rebuilds this renderer: model, cameras, image size and quality.
+
+        The GL context and MuJoCo's visualisation structs hold C pointers and belong to the
+        thread that made them, so a pickled or deep-copied renderer makes its own context on
+        its first `render` (as a new one does). Pickled with the env, `model` stays the env's
+        own model object, so obstacles set on the copy's scene show in the copy's images.
+        """
+        return {
+            "model": self.model,
+            "camera_ids": self.camera_ids,
+            "height": self.height,
+            "width": self.width,
+            "quality": self.quality,
+        }
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(**state)
+
     def __del__(self) -> None:
         try:
             self.close()
