@@ -2,27 +2,46 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, make_dataclass
+from importlib.resources import files
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
 
 from clamgen.envs import ENV_IDS
+from clamgen.experiments.policies import BASELINES, SHIPPED_POLICIES, PolicyName
 
 DESCRIPTION = "CLAMGen: closed-loop UR5 arm motion generation via multi-view vision-based RL."
+# Training presets shipped in clamgen/presets/, by name (`--preset NAME`).
+PRESET_NAMES = tuple(
+    sorted(
+        p.name[: -len(".toml")]
+        for p in (files("clamgen") / "presets").iterdir()
+        if p.name.endswith(".toml")
+    )
+)
+PresetName = Literal[PRESET_NAMES]  # built from the files, so `--help` lists what is shipped
+EnvId = Literal[ENV_IDS]
+POLICIES_HELP = (
+    f"Shipped policies: {', '.join(SHIPPED_POLICIES)}; baselines: {', '.join(BASELINES)}; "
+    "or the path of a policy file from `clamgen train` / `clamgen train-residual`."
+)
+PRESETS_HELP = f"Presets: {', '.join(PRESET_NAMES)} (clamgen/presets/), or a .toml path."
 
 
 @dataclass(frozen=True)
 class DemoConfig:
     """Render the scene from every camera and roll out the IK-interpolation policy."""
 
-    env_id: str = ENV_IDS[1]
-    """Environment to roll out in (`CLAMGen/Reach-v0` or `CLAMGen/ReachObstacles-v0`)."""
+    env_id: EnvId = ENV_IDS[1]
+    """Environment to roll out in."""
     num_episodes: int = 5
     """Episodes to roll out."""
     seed: int = 0
@@ -132,44 +151,68 @@ def train_residual(config) -> dict:
     return summary
 
 
+def _option_value(argv: list[str], flag: str) -> str | None:
+    """The value given to `flag` (`FLAG VALUE` or `FLAG=VALUE`, the last one wins), or None."""
+    value = None
+    for i, arg in enumerate(argv):
+        if arg == flag:
+            if i + 1 >= len(argv) or argv[i + 1].startswith("--"):
+                raise SystemExit(f"{flag} needs a value")
+            value = argv[i + 1]
+        elif arg.startswith(flag + "="):
+            value = arg[len(flag) + 1 :]
+    return value
+
+
 def _train_config(argv: list[str], default_preset: str = "base", stage: int = 1):
-    """A config from `--preset NAME` plus command-line overrides."""
+    """A config from `--preset NAME` plus command-line overrides.
+
+    The preset is read first (it sets every default that `--help` shows); the command line is
+    then parsed against those defaults, with `--preset` itself among the listed options.
+    """
     from clamgen.experiments.config import TrainConfig, load_preset
     from clamgen.experiments.stage2 import Stage2Config
 
     cls = TrainConfig if stage == 1 else Stage2Config
     handler = train if stage == 1 else train_residual
-    preset = default_preset
-    if "--preset" in argv:
-        index = argv.index("--preset")
-        if index + 1 >= len(argv):
-            raise SystemExit("--preset needs a name or a .toml path")
-        preset = argv[index + 1]
-        argv = argv[:index] + argv[index + 2 :]
+    preset = _option_value(argv, "--preset") or default_preset
     try:
         default = load_preset(preset, cls)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(str(error)) from error
+    preset_help = f"Preset the options below start from. {PRESETS_HELP}"
+    command = make_dataclass(
+        f"{cls.__name__}Command",
+        [
+            (
+                "preset",
+                Annotated[PresetName | Path, tyro.conf.arg(help=preset_help)],
+                field(default=preset if preset in PRESET_NAMES else Path(preset)),
+            ),
+            ("config", Annotated[cls, tyro.conf.arg(name="")], field(default=default)),
+        ],
+        frozen=True,
+    )
     name = "train" if stage == 1 else "train-residual"
-    return tyro.cli(
-        cls,
-        default=default,
+    parsed = tyro.cli(
+        command,
         args=argv,
         prog=f"clamgen {name}",
-        description=f"{handler.__doc__} Options start from --preset {preset!r}; "
-        "presets live in clamgen/presets/ (or pass a .toml path).",
+        description=f"{handler.__doc__} Options start from --preset {preset!r}. {PRESETS_HELP}",
     )
+    return parsed.config
 
 
 @dataclass(frozen=True)
 class EvalConfig:
     """Reproduce a row set of the paper's Table 1 (reaching) or Table 2 (obstacles)."""
 
-    table: int = 1
+    table: Literal[1, 2] = 1
     """1: static and moving targets, no obstacles; 2: static targets past two obstacles."""
-    policy: str = "base"
-    """`base` or `residual-2views` (policies shipped with the package), a policy file written by
-    `clamgen train` (`RUN_DIR/policy.pt`), or `ik` (the IK-interpolation baseline itself)."""
+    policy: PolicyName | Path = "base"
+    """A policy shipped with the package (`base`, `residual-2views`, `image-only`), a baseline
+    (`ik`: IK interpolation, `rrt`: RRT-Connect with the full scene model), or a policy file
+    written by `clamgen train` / `clamgen train-residual` (`RUN_DIR/policy.pt`)."""
     num_tasks: int = 200
     """Evaluation tasks per speed row (the paper: 200)."""
     speeds: tuple[str, ...] = ("0", "0.05", "0.1", "0.2", "variable")
@@ -245,11 +288,11 @@ def evaluate_table(config: EvalConfig) -> list:
 def render(config) -> dict:
     """Render rollouts of a policy (learned, IK interpolation or RRT) to MP4 and GIF."""
     from clamgen.experiments.checkpoint import CheckpointError
-    from clamgen.experiments.policies import load_policy, policy_label
+    from clamgen.experiments.policies import policy_label
     from clamgen.experiments.video import render_rollouts
 
     try:
-        policy, _, env_kwargs = load_policy(config.policy)
+        policy, _, env_kwargs = _load_policy(config.policy)
         summary = render_rollouts(config, policy, policy_label(config.policy), env_kwargs)
     except (CheckpointError, ValueError) as error:
         raise SystemExit(str(error)) from error
@@ -259,10 +302,42 @@ def render(config) -> dict:
     return summary
 
 
+@functools.cache
+def _load_policy(name: str | Path) -> tuple:
+    """`experiments.policies.load_policy`, once per process (building a command's defaults
+    and running it share the loaded policy); a CheckpointError for a bad policy file."""
+    from clamgen.experiments.policies import load_policy
+
+    return load_policy(name)
+
+
+def _policy_num_views(name: str | Path) -> int | None:
+    """Camera views the policy observes (None: it observes none)."""
+    from clamgen.experiments.checkpoint import CheckpointError
+
+    try:
+        _, _, env_kwargs = _load_policy(name)
+    except CheckpointError as error:
+        raise SystemExit(str(error)) from error
+    return env_kwargs.get("num_views") or None
+
+
 def _render_config(argv: list[str]):
+    """Render options; `--num-views` defaults to the policy's own views (3 for policies that
+    see none), so that the video shows what the policy sees."""
     from clamgen.experiments.video import RenderConfig
 
-    return tyro.cli(RenderConfig, args=argv, prog="clamgen render")
+    name = _option_value(argv, "--policy") or RenderConfig.policy
+    policy = name if name in (*SHIPPED_POLICIES, *BASELINES) else Path(name)
+    default = RenderConfig(policy=policy, num_views=_policy_num_views(policy) or 3)
+    return tyro.cli(
+        RenderConfig,
+        default=default,
+        args=argv,
+        prog="clamgen render",
+        description=f"{render.__doc__} {POLICIES_HELP} --num-views defaults to the views the "
+        "policy observes.",
+    )
 
 
 def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_kwargs: dict):
@@ -310,7 +385,15 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
         lambda argv: _train_config(argv, "residual-cpu", stage=2),
         train_residual,
     ),
-    "eval": (lambda argv: tyro.cli(EvalConfig, args=argv, prog="clamgen eval"), evaluate_table),
+    "eval": (
+        lambda argv: tyro.cli(
+            EvalConfig,
+            args=argv,
+            prog="clamgen eval",
+            description=f"{evaluate_table.__doc__} {POLICIES_HELP}",
+        ),
+        evaluate_table,
+    ),
     "render": (_render_config, render),
     "report": (_report_config, report),
 }
@@ -320,7 +403,14 @@ def _usage() -> str:
     lines = ["usage: clamgen COMMAND [OPTIONS]", "", DESCRIPTION, "", "commands:"]
     for name, (_, handler) in COMMANDS.items():
         lines.append(f"  {name:<10} {(handler.__doc__ or '').splitlines()[0]}")
-    lines += ["", "Run `clamgen COMMAND --help` for the options of a command."]
+    lines += [
+        "",
+        f"presets (train, train-residual --preset NAME): {', '.join(PRESET_NAMES)}",
+        f"shipped policies (eval, render --policy NAME): {', '.join(SHIPPED_POLICIES)}; "
+        f"baselines: {', '.join(BASELINES)}",
+        "",
+        "Run `clamgen COMMAND --help` for the options of a command.",
+    ]
     return "\n".join(lines)
 
 

@@ -32,7 +32,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -65,7 +65,7 @@ LOW_DIM_KEYS = ("observation", "desired_goal")
 class ResidualConfig:
     """Stage-2 agent settings (every component switchable for the ablations)."""
 
-    obs_source: str = "images"
+    obs_source: Literal["images", "obstacles"] = "images"
     """"images" (camera views) or "obstacles" (the obstacles' true poses, privileged)."""
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     """Multi-view encoder; `encoder.image_size` is the crop the networks see."""

@@ -12,7 +12,7 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from clamgen.agents.sac import SACConfig
 from clamgen.envs import ENV_IDS
@@ -40,7 +40,7 @@ class EnvConfig:
     """Camera views rendered into observations (0: joint observations only)."""
     image_size: int = 128
     """Side in pixels of each view."""
-    obs_mode: str = "joints"
+    obs_mode: Literal["joints", "images", "both"] = "joints"
     """"joints", "images" or "both" (CLAMGen envs)."""
     collision_penalty: Schedule = field(default_factory=Constant)
     """Collision penalty over training progress (paper: LinearRamp(0.3, 0.9, 0.0, 0.1))."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from importlib.resources import files
 from pathlib import Path
+from typing import Literal
 
 from clamgen.policy import Policy
 
@@ -14,16 +15,18 @@ SHIPPED_POLICIES = {
     "image-only": "image-only.pt",
 }
 BASELINES = ("ik", "rrt")
+# The names above, as a type: command-line options typed `PolicyName | Path` list them.
+PolicyName = Literal["base", "residual-2views", "image-only", "ik", "rrt"]
 
 
-def resolve_policy_path(name: str) -> Path:
+def resolve_policy_path(name: str | Path) -> Path:
     """A shipped policy's file, or `name` as a path."""
     if name in SHIPPED_POLICIES:
         return Path(str(files("clamgen") / "checkpoints" / SHIPPED_POLICIES[name]))
     return Path(name)
 
 
-def load_policy(name: str) -> tuple[Policy, str, dict]:
+def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
     """A policy, a description of where it came from, and the env options it observes with.
 
     `name`: "ik" (IK interpolation), "rrt" (OMPL RRTConnect with the full scene model),
@@ -66,6 +69,6 @@ def policy_observation(policy: Policy) -> str:
     return "joints+images" if config.use_low_dim else "images"
 
 
-def policy_label(name: str) -> str:
+def policy_label(name: str | Path) -> str:
     """A short name for file names: the baseline or shipped name, else the file's stem."""
     return name if name in (*BASELINES, *SHIPPED_POLICIES) else Path(name).stem

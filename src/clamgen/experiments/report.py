@@ -14,8 +14,10 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import matplotlib
+import tyro
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -35,8 +37,9 @@ CURVE_METRIC = "eval/success_rate"
 class ReportConfig:
     """Build the results page from the files under a results directory."""
 
-    results_dir: Path = Path("results")
-    """Directory holding tables, training metrics and benchmark CSVs; the page goes here."""
+    results_dir: Annotated[Path, tyro.conf.arg(aliases=("--results",))] = Path("results")
+    """Directory holding tables, training metrics and benchmark CSVs (absolute, or relative to
+    the current directory); the page goes here."""
 
 
 def load_table1(path: Path) -> tuple[list[SpeedRow], dict]:
@@ -105,6 +108,7 @@ def plot_speed(rows: list[dict], out: Path) -> Path | None:
     for i, value in enumerate(values):
         ax.text(value, i, f" {value:.2f}x", va="center")
     fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return out
@@ -114,7 +118,9 @@ def build_report(config: ReportConfig) -> Path:
     """Write REPORT.md (and figures) into `config.results_dir`; returns the page's path."""
     root = config.results_dir
     if not root.is_dir():
-        raise FileNotFoundError(f"results directory not found: {root}")
+        raise FileNotFoundError(
+            f"results directory not found: {root.resolve()} (pass --results DIR)"
+        )
     figures = root / "figures"
     lines = [
         "# CLAMGen results",

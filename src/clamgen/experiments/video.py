@@ -17,6 +17,7 @@ from PIL import Image, ImageDraw
 from tqdm import tqdm
 
 from clamgen.envs import ENV_IDS, ReachEnv
+from clamgen.experiments.policies import PolicyName
 from clamgen.sim import constants as C
 from clamgen.sim.render import MultiViewRenderer
 
@@ -29,8 +30,8 @@ GREEN, RED, WHITE = (40, 200, 60), (230, 40, 40), (255, 255, 255)
 class RenderConfig:
     """Render rollouts of a policy to MP4 and GIF."""
 
-    policy: str = "base"
-    """`base` or `residual-2views` (shipped), a policy file, `ik` (IK interpolation) or `rrt`."""
+    policy: PolicyName | Path = "base"
+    """A shipped policy, `ik` (IK interpolation), `rrt`, or a policy file."""
     env_id: str = ENV_IDS[1]
     """`CLAMGen/Reach-v0` or `CLAMGen/ReachObstacles-v0`."""
     num_episodes: int = 3
