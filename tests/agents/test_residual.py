@@ -152,12 +152,14 @@ def test_privileged_critic_sees_joints_and_goal_but_the_policy_does_not():
     moved = dict(data["obs"], observation=data["obs"]["observation"] + 1.0)
     np.testing.assert_array_equal(agent.act(data["obs"], True), agent.act(moved, True))
     x, y = agent._train_inputs(data), agent._train_inputs(dict(data, obs=moved))
-    assert torch.equal(x.actor_low_dim, y.actor_low_dim) and not torch.equal(x.low_dim, y.low_dim)
+    actor_x, actor_y = agent._actor_view(x.state), agent._actor_view(y.state)
+    critic_x, critic_y = agent._critic_view(x.state), agent._critic_view(y.state)
+    assert torch.equal(actor_x, actor_y) and not torch.equal(critic_x, critic_y)
     with torch.no_grad():
         # Same crops and actions: only the joints and goal differ.
         q = [
             agent.critic(agent.critic.features(x.visual_in, d)[0], x.action)
-            for d in (x.low_dim, y.low_dim)
+            for d in (critic_x, critic_y)
         ]
     assert not torch.allclose(*q)
     assert np.isfinite(agent.update(data)["train/actor_loss"])
@@ -171,10 +173,11 @@ def test_privileged_base_q_starts_the_image_only_critic_at_q_base():
     agent = ResidualAgent(config(**image_only, privileged_base_q=True, warmup_updates=2), base)
     data = batch()
     x = agent._train_inputs(data)
+    low_dim = agent._critic_view(x.state)
     with torch.no_grad():
-        latent, _ = agent.critic.features(x.visual_in, x.low_dim)
-        q = agent._q(agent.critic, agent.base_critic, latent, x.low_dim, x.action)
-    torch.testing.assert_close(q, base.critic(x.low_dim, x.action))
+        latent, _ = agent.critic.features(x.visual_in, low_dim)
+        q = agent._q(agent.critic, agent.base_critic, latent, low_dim, x.action)
+    torch.testing.assert_close(q, base.critic(low_dim, x.action))
     # The policy has no base action: it still ignores the joints and the goal.
     moved = dict(data["obs"], observation=data["obs"]["observation"] + 1.0)
     np.testing.assert_array_equal(agent.act(data["obs"], True), agent.act(moved, True))

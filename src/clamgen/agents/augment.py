@@ -54,11 +54,21 @@ def random_crop(
     if num_draws != num_crops:
         top = top.repeat_interleave(num_crops // num_draws)
         left = left.repeat_interleave(num_crops // num_draws)
-    # unfold makes a view (N, C, H - c + 1, W - c + 1, c, c) of every c x c window without a
-    # copy; advanced indexing then copies only the chosen window of each image: (N, C, c, c).
-    windows = flat.unfold(2, crop_size, 1).unfold(3, crop_size, 1)
-    index = torch.arange(num_crops, device=images.device)
-    crops = windows[index, :, top, left]
+    # One slice copy per image: measured 2-3x faster on a CPU than a batched gather over
+    # unfolded windows (64 x 2 views of 64 px, 1 thread); on other devices the gather is one
+    # kernel instead of N.
+    if images.device.type == "cpu":
+        crops = torch.stack(
+            [
+                image[:, y : y + crop_size, x : x + crop_size]
+                for image, y, x in zip(flat, top.tolist(), left.tolist(), strict=True)
+            ]
+        )
+    else:
+        # unfold makes a view (N, C, H - c + 1, W - c + 1, c, c) of every c x c window without
+        # a copy; advanced indexing then copies only the chosen window of each image.
+        windows = flat.unfold(2, crop_size, 1).unfold(3, crop_size, 1)
+        crops = windows[torch.arange(num_crops, device=images.device), :, top, left]
     return crops.reshape(*lead_shape, channels, crop_size, crop_size)
 
 

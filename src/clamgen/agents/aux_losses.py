@@ -18,7 +18,10 @@
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import torch
 import torch.nn.functional as F
@@ -28,15 +31,25 @@ from clamgen.agents.networks import mlp
 from clamgen.agents.sac import soft_update
 
 __all__ = [
+    "AUX_LOSSES",
+    "AcrossViewLoss",
+    "AuxDims",
+    "AuxInputs",
+    "AuxLoss",
     "AuxLossConfig",
     "CURLHead",
     "CollisionHead",
+    "CollisionLoss",
+    "InstanceContrastiveLoss",
+    "StateLoss",
     "across_view_loss",
     "bilinear_logits",
+    "build_aux_losses",
     "collision_loss",
     "curl_loss",
     "make_momentum_copy",
     "momentum_update",
+    "register_aux_loss",
 ]
 
 
@@ -61,6 +74,8 @@ class AuxLossConfig:
     """Hidden ReLU layer widths of the collision head."""
     encoder_momentum_tau: float = 0.05
     """EMA rate of the key encoder: target <- (1 - tau) target + tau online (CURL's 0.05)."""
+    extra_weights: dict[str, float] = field(default_factory=dict)
+    """Weights of further registered auxiliary losses (`register_aux_loss`), by name."""
 
 
 def bilinear_logits(query: torch.Tensor, key: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -212,3 +227,237 @@ def collision_loss(
     if pos_weight is not None:
         weight = torch.tensor(pos_weight, dtype=logits.dtype, device=logits.device)
     return F.binary_cross_entropy_with_logits(logits, collided.to(logits.dtype), pos_weight=weight)
+
+
+# --------------------------------------------------------------------------------------------
+# Auxiliary losses as the stage-2 agent uses them: each owns its head, its weight and its
+# metrics. A new loss is one subclass registered with `register_aux_loss` plus its weight in
+# `AuxLossConfig.extra_weights`; the agent then builds it, trains its parameters with the
+# critic's optimiser, moves it to the device and keeps it in its state dict.
+
+
+@dataclass(frozen=True)
+class AuxDims:
+    """Sizes an auxiliary loss builds its head from."""
+
+    feature_dim: int
+    """Size of the visual encoding (B, Dv)."""
+    latent_dim: int
+    """Size of the critic's fused latent: visual encoding + low-dim encoding (B, Dz)."""
+    action_dim: int
+    """Size A of an action."""
+    state_dim: int
+    """Size of the true low-dim state: joints (6) + goal (3)."""
+    num_views: int
+    """Camera views V (0 for the privileged obstacle-pose input)."""
+
+
+class AuxInputs:
+    """What an auxiliary loss may read in one update (B = batch size).
+
+    Attributes:
+        latent: (B, Dz) the critic's fused latent of the query crop (gradients reach the
+            encoder when the critic trains it).
+        visual: (B, Dv) the visual encoding of the query crop, with gradients to the encoder.
+        action: (B, A) the batch's actions in [-1, 1].
+        collided: (B,) float in {0, 1}: whether the step reported a collision.
+        state: (B, 9) the true normalised joints + goal (privileged; training only).
+    The contrastive terms read the per-view encodings of the query crop and the momentum
+    encoder's encodings of a second crop (:attr:`key_merged`, :attr:`key_views`), computed
+    on first use and shared between the terms.
+    """
+
+    def __init__(
+        self,
+        latent: torch.Tensor,
+        visual: torch.Tensor,
+        action: torch.Tensor,
+        collided: torch.Tensor,
+        state: torch.Tensor,
+        encoder: nn.Module | None = None,
+        query_projections: torch.Tensor | None = None,
+        key_encoder: nn.Module | None = None,
+        key_images: Callable[[], torch.Tensor] | None = None,
+    ) -> None:
+        self.latent, self.visual, self.action = latent, visual, action
+        self.collided, self.state = collided, state
+        self._encoder, self._query_projections = encoder, query_projections
+        self._key_encoder, self._key_images = key_encoder, key_images
+
+    @functools.cached_property
+    def query_merged(self) -> torch.Tensor:
+        """(B, Dv) online encoding of the query crop with every view kept."""
+        return self._encoder.merge_projected(self._query_projections)
+
+    @functools.cached_property
+    def query_views(self) -> torch.Tensor:
+        """(B, V, Dv) online encoding of each view of the query crop alone."""
+        return self._encoder.single_views_projected(self._query_projections)
+
+    @functools.cached_property
+    def _key_projections(self) -> torch.Tensor:
+        with torch.no_grad():
+            return self._key_encoder.project(self._key_encoder.conv_trunk(self._key_images()))
+
+    @functools.cached_property
+    def key_merged(self) -> torch.Tensor:
+        """(B, Dv) momentum encoding of a second crop of the same images (no gradient)."""
+        with torch.no_grad():
+            return self._key_encoder.merge_projected(self._key_projections)
+
+    @functools.cached_property
+    def key_views(self) -> torch.Tensor:
+        """(B, V, Dv) momentum encoding of each view of the second crop (no gradient)."""
+        with torch.no_grad():
+            return self._key_encoder.single_views_projected(self._key_projections)
+
+
+class AuxLoss(nn.Module):
+    """An auxiliary loss of stage 2: its head's parameters, its weight, its metrics.
+
+    Subclasses set `name` (the metric is `train/{name}_loss`), build their head in
+    `__init__(dims, config)` and compute `forward(inputs) -> (loss, extra metrics)`.
+    """
+
+    name: ClassVar[str]
+    needs_images: ClassVar[bool] = False
+    """Only built for image observations (the contrastive terms)."""
+    in_policy: ClassVar[bool] = False
+    """Its head is kept in exported policy files (it is used at inference, not only in
+    training)."""
+
+    def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
+        super().__init__()
+        self.weight = self.weight_in(config)
+
+    @classmethod
+    def weight_in(cls, config: AuxLossConfig) -> float:
+        """This loss's weight in `config` (its entry in `extra_weights` unless built in)."""
+        return float(config.extra_weights.get(cls.name, 0.0))
+
+    @classmethod
+    def configured(cls, config: AuxLossConfig, dims: AuxDims) -> bool:
+        """Whether an agent with this config and these inputs has the loss at all."""
+        built_in = cls.name in BUILT_IN_AUX_LOSSES
+        named = built_in or cls.name in config.extra_weights
+        return named and (dims.num_views > 0 or not cls.needs_images)
+
+    def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
+        raise NotImplementedError
+
+
+AUX_LOSSES: dict[str, type[AuxLoss]] = {}
+"""Every registered auxiliary loss by name, in registration order (the order of the sum)."""
+BUILT_IN_AUX_LOSSES = ("collision", "state", "curl", "across_view")
+
+
+def register_aux_loss(cls: type[AuxLoss]) -> type[AuxLoss]:
+    """Class decorator: make `cls` available to the stage-2 agent under `cls.name`."""
+    if not getattr(cls, "name", ""):
+        raise ValueError(f"{cls.__name__} needs a class attribute `name`")
+    AUX_LOSSES[cls.name] = cls
+    return cls
+
+
+def build_aux_losses(config: AuxLossConfig, dims: AuxDims) -> nn.ModuleDict:
+    """The configured auxiliary losses of an agent, by name."""
+    unknown = set(config.extra_weights) - set(AUX_LOSSES)
+    if unknown:
+        raise ValueError(
+            f"unknown auxiliary losses {sorted(unknown)} in aux.extra_weights; registered: "
+            f"{sorted(AUX_LOSSES)}"
+        )
+    configured = {n: cls for n, cls in AUX_LOSSES.items() if cls.configured(config, dims)}
+    return nn.ModuleDict({name: cls(dims, config) for name, cls in configured.items()})
+
+
+@register_aux_loss
+class CollisionLoss(AuxLoss):
+    """The paper's collision dynamics: from z_t and a_t, predict whether the step collides."""
+
+    name = "collision"
+
+    def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
+        super().__init__(dims, config)
+        self.head = CollisionHead(dims.latent_dim, dims.action_dim, config.collision_hidden_sizes)
+        self.pos_weight = config.collision_pos_weight
+
+    @classmethod
+    def weight_in(cls, config: AuxLossConfig) -> float:
+        return config.collision_weight
+
+    def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
+        logits = self.head(inputs.latent, inputs.action)
+        loss = collision_loss(logits, inputs.collided, self.pos_weight)
+        predicted = (logits.detach() > 0).float()
+        accuracy = (predicted == inputs.collided).float().mean().item()
+        return loss, {"train/collision_accuracy": accuracy}
+
+
+@register_aux_loss
+class StateLoss(AuxLoss):
+    """Regression of the normalised joints + goal from the visual encoding (ours, training
+    only): teaches an image-only encoder where the arm and the target are. The head is also
+    what `ResidualAgent.predict_state` and encoder pretraining use."""
+
+    name = "state"
+    in_policy = True
+
+    def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
+        super().__init__(dims, config)
+        self.head = mlp(dims.feature_dim, (256,), dims.state_dim)
+
+    @classmethod
+    def weight_in(cls, config: AuxLossConfig) -> float:
+        return config.state_weight
+
+    def regression(self, visual: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """MSE of the head's (B, 9) prediction from `visual` (B, Dv) to `state`."""
+        return F.mse_loss(self.head(visual), state)
+
+    def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
+        return self.regression(inputs.visual, inputs.state), {}
+
+
+@register_aux_loss
+class InstanceContrastiveLoss(AuxLoss):
+    """CURL's crop-vs-crop InfoNCE: the query crop's online encoding against the momentum
+    encoding of another crop of the same images."""
+
+    name = "curl"
+    needs_images = True
+
+    def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
+        super().__init__(dims, config)
+        # Identity start: the first logits are dot products (see CURLHead).
+        self.W = nn.Parameter(torch.eye(dims.feature_dim))
+
+    @classmethod
+    def weight_in(cls, config: AuxLossConfig) -> float:
+        return config.curl_weight
+
+    def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
+        return curl_loss(inputs.query_merged, inputs.key_merged, self.W), {}
+
+
+@register_aux_loss
+class AcrossViewLoss(AuxLoss):
+    """The paper's across-view contrastive term: views of one scene are positives."""
+
+    name = "across_view"
+    needs_images = True
+
+    def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
+        super().__init__(dims, config)
+        self.W = nn.Parameter(torch.eye(dims.feature_dim))
+
+    @classmethod
+    def weight_in(cls, config: AuxLossConfig) -> float:
+        return config.across_view_weight
+
+    @classmethod
+    def configured(cls, config: AuxLossConfig, dims: AuxDims) -> bool:
+        return dims.num_views > 1  # one view has no pair of views
+
+    def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
+        return across_view_loss(inputs.query_views, inputs.key_views, self.W), {}

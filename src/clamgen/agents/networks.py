@@ -29,6 +29,20 @@ def mlp(input_dim: int, hidden_sizes: tuple[int, ...], output_dim: int) -> nn.Se
     return nn.Sequential(*layers)
 
 
+def tanh_gaussian_sample(
+    mean: torch.Tensor, log_std: torch.Tensor, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Reparameterised sample tanh(mean + std * eps), (B, A) in (-1, 1), and its exact
+    log-probability (B,) under the tanh-squashed Gaussian."""
+    noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+    pre_squash = mean + log_std.exp() * noise
+    # log N(u; mean, std) - log|d tanh(u)/du|, with log(1 - tanh(u)^2) written stably as
+    # 2 (log 2 - u - softplus(-2u)).
+    gaussian = -0.5 * noise.pow(2) - log_std - _LOG_SQRT_2PI
+    squash = 2.0 * (math.log(2.0) - pre_squash - F.softplus(-2.0 * pre_squash))
+    return torch.tanh(pre_squash), (gaussian - squash).sum(-1)
+
+
 class Actor(nn.Module):
     """Tanh-squashed diagonal Gaussian policy ``pi(a | s, g)`` over actions in [-1, 1]^A."""
 
@@ -56,15 +70,7 @@ class Actor(nn.Module):
         self, features: torch.Tensor, generator: torch.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Reparameterised action (B, A) in (-1, 1) and its log-probability (B,)."""
-        mean, log_std = self(features)
-        noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
-        pre_squash = mean + log_std.exp() * noise
-        action = torch.tanh(pre_squash)
-        # log N(u; mean, std) - log|d tanh(u)/du|, with log(1 - tanh(u)^2) written stably as
-        # 2 (log 2 - u - softplus(-2u)).
-        gaussian = -0.5 * noise.pow(2) - log_std - _LOG_SQRT_2PI
-        squash = 2.0 * (math.log(2.0) - pre_squash - F.softplus(-2.0 * pre_squash))
-        return action, (gaussian - squash).sum(-1)
+        return tanh_gaussian_sample(*self(features), generator)
 
     def mode(self, features: torch.Tensor) -> torch.Tensor:
         """Deterministic action tanh(mean), (B, A)."""

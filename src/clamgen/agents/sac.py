@@ -30,6 +30,7 @@ __all__ = [
     "NonFiniteLossError",
     "SACAgent",
     "SACConfig",
+    "finite_value",
     "flatten_obs",
     "soft_update",
 ]
@@ -77,6 +78,17 @@ class SACConfig:
 
 class NonFiniteLossError(FloatingPointError):
     """A training loss became NaN or infinite; raised before the bad gradient is applied."""
+
+
+def finite_value(name: str, loss: torch.Tensor, num_updates: int) -> float:
+    """`loss.item()`, or NonFiniteLossError naming the loss when it is NaN or infinite."""
+    value = loss.item()
+    if not math.isfinite(value):
+        raise NonFiniteLossError(
+            f"{name} is {value} at update {num_updates}; check the batch for NaN/inf "
+            "observations or rewards, and the learning rates"
+        )
+    return value
 
 
 def flatten_obs(obs: Mapping[str, Any], keys: tuple[str, ...]) -> np.ndarray:
@@ -278,13 +290,7 @@ class SACAgent:
         }
 
     def _check_finite(self, name: str, loss: torch.Tensor) -> float:
-        value = loss.item()
-        if not math.isfinite(value):
-            raise NonFiniteLossError(
-                f"{name} is {value} at update {self.num_updates}; check the batch for NaN/inf "
-                "observations or rewards, and the learning rates"
-            )
-        return value
+        return finite_value(name, loss, self.num_updates)
 
     def state_dict(self) -> dict[str, Any]:
         """Everything needed to resume: networks, optimisers, temperature, normaliser, RNG states,

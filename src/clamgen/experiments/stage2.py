@@ -35,15 +35,6 @@ from clamgen.replay.her import reversible_her
 from clamgen.schedules import LinearRamp
 
 RESIDUAL_POLICY_KIND = "residual-policy"
-RESIDUAL_POLICY_KEYS = (
-    "config",
-    "critic",
-    "actor",
-    "base_actor",
-    "base_critic",
-    "normalizer",
-    "log_alpha",
-)
 
 
 @dataclass(frozen=True)
@@ -138,7 +129,11 @@ class Stage2Trainer(Trainer):
     """The stage-1 loop with a residual agent and re-rendered hindsight episodes."""
 
     policy_kind = RESIDUAL_POLICY_KIND
-    policy_state_keys = RESIDUAL_POLICY_KEYS
+
+    @property
+    def policy_state_keys(self) -> tuple[str, ...]:
+        """The agent's own list: its acting networks and inference-time heads."""
+        return self.agent.policy_state_keys()
 
     def __init__(self, config: Stage2Config) -> None:
         self._worker = None
@@ -254,19 +249,8 @@ def load_residual_agent(path: Path) -> tuple[ResidualAgent, Stage2Config]:
     obs_dim = int(state["normalizer"]["mean"].shape[0])
     base = SACAgent(base_config, obs_dim=obs_dim, action_dim=int(payload["action_dim"]))
     agent = ResidualAgent(config.agent, base)
-    # Training-only parts a policy file leaves out keep their fresh values.
-    fresh = agent.state_dict()
-    for key in (
-        "critic_target",
-        "key_encoder",
-        "base_critic_target",
-        "collision_head",
-        "curl",
-        "num_updates",
-    ):
-        state.setdefault(key, fresh[key])
-    try:
-        agent.load_state_dict(state)
+    try:  # the training-only parts a policy file leaves out keep their fresh values
+        agent.load_state_dict(state, policy_only=True)
     except (RuntimeError, KeyError) as error:
         raise ckpt.CheckpointError(f"{path} does not match its own config: {error}") from error
     return agent, config
