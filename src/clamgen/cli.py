@@ -360,6 +360,39 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
     return row
 
 
+@dataclass(frozen=True)
+class ExportSceneConfig:
+    """Write one task's scene as viewer-ready MJCF."""
+
+    seed: int = 1_000_000_000
+    """Reset seed of the task (the default is the first held-out evaluation task)."""
+    env_id: EnvId = ENV_IDS[1]
+    """Environment whose task family samples the task."""
+    out: Path | None = None
+    """MJCF file to write (default: runs/scenes/<env>_seed<SEED>.xml)."""
+
+
+def export_scene(config: ExportSceneConfig) -> Path:
+    """Write a seeded task's scene as MJCF for MuJoCo's viewer (obstacles, target, start key)."""
+    import gymnasium as gym
+
+    from clamgen.sim.scene import START_KEY, task_mjcf
+
+    if config.seed < 0:
+        raise SystemExit(f"--seed must be >= 0, got {config.seed}")
+    env = gym.make(config.env_id).unwrapped
+    env.reset(seed=config.seed)
+    task = env.task
+    env.close()
+    name = config.env_id.split("/")[-1].split("-")[0].lower()
+    out = config.out or Path("runs/scenes") / f"{name}_seed{config.seed}.xml"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(task_mjcf(task.start_joints, task.target_position_m, task.obstacles))
+    print(f"wrote {out}: {len(task.obstacles)} obstacles, start pose in keyframe {START_KEY!r}")
+    print(f"view it: python -m mujoco.viewer --mjcf={out}  (then load key 0, {START_KEY!r})")
+    return out
+
+
 def report(config) -> None:
     """Write results/REPORT.md: Tables 1 and 2 beside the paper, learning curves, speed."""
     from clamgen.experiments.report import build_report
@@ -396,13 +429,17 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
     ),
     "render": (_render_config, render),
     "report": (_report_config, report),
+    "export-scene": (
+        lambda argv: tyro.cli(ExportSceneConfig, args=argv, prog="clamgen export-scene"),
+        export_scene,
+    ),
 }
 
 
 def _usage() -> str:
     lines = ["usage: clamgen COMMAND [OPTIONS]", "", DESCRIPTION, "", "commands:"]
     for name, (_, handler) in COMMANDS.items():
-        lines.append(f"  {name:<10} {(handler.__doc__ or '').splitlines()[0]}")
+        lines.append(f"  {name:<14} {(handler.__doc__ or '').splitlines()[0]}")
     lines += [
         "",
         f"presets (train, train-residual --preset NAME): {', '.join(PRESET_NAMES)}",

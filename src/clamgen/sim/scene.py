@@ -349,3 +349,73 @@ class Scene:
         out = np.fromiter((self.in_collision(q) for q in flat), dtype=bool, count=len(flat))
         self.set_joints(saved)
         return out.reshape(joints.shape[:-1])
+
+
+# ------------------------------------------------------------------- viewer-ready export
+# The exported scene is simulated by MuJoCo's viewer, not moved kinematically. The links are
+# gravity-compensated (as a real arm's controller does), so the position servos only hold
+# against contacts and drift; the rotor inertia (armature) keeps the servo of the light wrist
+# stable at the 2 ms step: sqrt(kp / armature) * dt = 0.28.
+EXPORT_TIMESTEP_S = 0.002
+HOLD_KP_NM_PER_RAD = 1000.0
+HOLD_DAMPING_RATIO = 1.0
+JOINT_ARMATURE_KG_M2 = 0.05
+START_KEY = "start"
+
+
+def task_spec(
+    start_joints: np.ndarray, target_position_m: np.ndarray, obstacles: Obstacles
+) -> mujoco.MjSpec:
+    """One task's scene as an `MjSpec` for MuJoCo's viewer and for other simulators.
+
+    Unlike the model `Scene` compiles (obstacle slots parked at z = -10 and shaped at reset),
+    the task's obstacles stand in place with their own shapes and sizes, unused slots are
+    removed, the target is at `target_position_m`, and a keyframe named "start" holds the
+    start joints (6,) radians. The links are gravity-compensated and each joint gets a
+    position actuator (`hold_<joint>`) whose control the keyframe sets to the start joints, so
+    the arm stays still instead of falling; the time step is `EXPORT_TIMESTEP_S`.
+    """
+    if len(obstacles) > C.MAX_OBSTACLES:
+        raise ValueError(f"at most {C.MAX_OBSTACLES} obstacles, got {len(obstacles)}")
+    start_joints = np.asarray(start_joints, np.float64)
+    if start_joints.shape != (ur5.NUM_JOINTS,):
+        raise ValueError(f"start_joints must have shape ({ur5.NUM_JOINTS},)")
+    spec = mujoco.MjSpec.from_string(build_mjcf())
+    spec.modelname = "clamgen_task"
+    spec.option.timestep = EXPORT_TIMESTEP_S
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    for i in range(1, ur5.NUM_JOINTS + 1):
+        spec.body(f"link{i}").gravcomp = 1.0
+    for name in ur5.JOINT_NAMES:
+        spec.joint(name).armature = JOINT_ARMATURE_KG_M2
+    spec.body("target").pos = np.asarray(target_position_m, np.float64)
+    for slot in range(C.MAX_OBSTACLES):
+        body = spec.body(f"obstacle{slot}")
+        if slot >= len(obstacles):
+            spec.delete(body)
+            continue
+        body.pos = obstacles.positions_m[slot]
+        half = obstacles.half_sizes_m[slot]
+        box, cylinder = spec.geom(f"obstacle{slot}_box"), spec.geom(f"obstacle{slot}_cylinder")
+        if obstacles.kinds[slot] == C.OBSTACLE_BOX:
+            box.size = half
+            spec.delete(cylinder)
+        else:
+            cylinder.size = [half[0], half[2], 0.0]
+            spec.delete(box)
+    for name in ur5.JOINT_NAMES:
+        actuator = spec.add_actuator(
+            name=f"hold_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT
+        )
+        actuator.set_to_position(kp=HOLD_KP_NM_PER_RAD, dampratio=HOLD_DAMPING_RATIO)
+        lo, hi = ur5.JOINT_LIMITS[ur5.JOINT_NAMES.index(name)]
+        actuator.ctrlrange = [lo, hi]
+    spec.add_key(name=START_KEY, qpos=start_joints, ctrl=start_joints)
+    return spec
+
+
+def task_mjcf(start_joints: np.ndarray, target_position_m: np.ndarray, obstacles: Obstacles) -> str:
+    """`task_spec` as MJCF text: `python -m mujoco.viewer --mjcf FILE`, then load key "start"."""
+    spec = task_spec(start_joints, target_position_m, obstacles)
+    spec.compile()
+    return spec.to_xml()
