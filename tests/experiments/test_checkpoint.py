@@ -4,6 +4,7 @@ one copy of the replay on resume, metrics without repeated rows after a resume."
 import csv
 import dataclasses
 import os
+import time
 import tracemalloc
 from collections import Counter
 from pathlib import Path
@@ -59,7 +60,29 @@ def small_blocks(monkeypatch):
 
 def save(store: ckpt.CheckpointStore, buffer: ReplayBuffer, step: int) -> Path:
     payload = {"format": ckpt.FORMAT, "kind": ckpt.TRAINING_KIND, "stamp": step}
-    return store.save(payload, {"extra": np.arange(step)}, buffer)
+    path = store.save(payload, {"extra": np.arange(step)}, buffer)
+    store.wait()
+    return path
+
+
+def copy_of(buffer: ReplayBuffer, capacity: int = 200) -> ReplayBuffer:
+    copy = make_buffer(capacity)
+    copy.load_state_dict({k: v.copy() for k, v in buffer.state_dict().items()})
+    return copy
+
+
+def slow_writes(monkeypatch, fail_on: str | None = None) -> None:
+    """Writing each file takes 20 ms (and `fail_on` fails), so the loop runs meanwhile."""
+    real = ckpt._write_file
+
+    def write(path, content):
+        time.sleep(0.02)
+        if fail_on is not None and path.name == fail_on:
+            raise OSError(28, "No space left on device")
+        return real(path, content)
+
+    monkeypatch.setattr(ckpt, "_write_file", write)
+    monkeypatch.setattr(ckpt, "BACKGROUND_BYTES", 0)
 
 
 def accept(payload, path):
@@ -108,6 +131,53 @@ def test_wrapping_buffer_round_trips_through_incremental_checkpoints(tmp_path, s
         assert len(restored) == len(buffer) and restored.num_episodes == buffer.num_episodes
 
 
+def test_a_background_checkpoint_holds_the_replay_as_it_was_when_saved(
+    tmp_path, small_blocks, monkeypatch
+):
+    buffer = make_buffer(capacity=100)
+    for i in range(8):
+        buffer.add_episode(episode(i))
+    store = ckpt.CheckpointStore(tmp_path)
+    save(store, buffer, 1)
+    for i in range(8, 14):  # wraps at episode 10
+        buffer.add_episode(episode(i))
+    slow_writes(monkeypatch)
+    snapshot = copy_of(buffer, capacity=100)
+    payload = {"format": ckpt.FORMAT, "kind": ckpt.TRAINING_KIND, "stamp": 2}
+    store.save(payload, {}, buffer)
+    assert store._job is not None and store._job.thread.is_alive()
+    for i in range(14, 20):  # changes blocks still being written: they wait for them
+        buffer.add_episode(episode(i))
+    store.wait()
+    restored = make_buffer(capacity=100)
+    assert ckpt.CheckpointStore(tmp_path).load(restored, accept).payload["stamp"] == 2
+    assert_same_buffer(snapshot, restored)
+    save(store, buffer, 3)  # and the changes made meanwhile go into the next one
+    ckpt.CheckpointStore(tmp_path).load(restored, accept)
+    assert_same_buffer(buffer, restored)
+
+
+def test_a_failed_background_checkpoint_is_reported_and_the_next_one_is_whole(
+    tmp_path, small_blocks, monkeypatch
+):
+    buffer = make_buffer()
+    for i in range(4):
+        buffer.add_episode(episode(i))
+    store = ckpt.CheckpointStore(tmp_path)
+    save(store, buffer, 1)
+    buffer.add_episode(episode(4))
+    with monkeypatch.context() as patch:
+        slow_writes(patch, fail_on="block-000002.npz")
+        with pytest.raises(ckpt.CheckpointError, match=r"No space left.*previous checkpoint is"):
+            save(store, buffer, 2)
+    assert [p.name for p in store.published()] == ["ckpt-000001"]
+    buffer.add_episode(episode(5))
+    save(store, buffer, 3)
+    restored = make_buffer()
+    ckpt.CheckpointStore(tmp_path).load(restored, accept)
+    assert_same_buffer(buffer, restored)
+
+
 def test_a_killed_save_leaves_the_previous_checkpoint_and_is_cleaned_up(tmp_path, small_blocks):
     buffer = make_buffer()
     buffer.add_episode(episode(0))
@@ -140,8 +210,7 @@ def test_a_damaged_newest_checkpoint_falls_back_to_the_previous_one(
         buffer.add_episode(episode(i))
     store = ckpt.CheckpointStore(tmp_path)
     save(store, buffer, 1)
-    expected = make_buffer()
-    expected.load_state_dict({k: v.copy() for k, v in buffer.state_dict().items()})
+    expected = copy_of(buffer)
     buffer.add_episode(episode(3))
     newest = save(store, buffer, 2)
     damage(newest)

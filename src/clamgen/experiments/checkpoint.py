@@ -24,11 +24,13 @@ Nothing is pickled: `torch.load(..., weights_only=True)` and `numpy.load(allow_p
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
 import sys
 import tempfile
+import threading
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -133,6 +135,8 @@ REPLAY_COUNTERS = "replay/counters"
 LEGACY_STATE_NAME = "latest.pt"
 LEGACY_REPLAY_NAME = "latest_replay.npz"
 _READ_CHUNK = 16 * 2**20
+BACKGROUND_BYTES = 64 * 2**20
+"""A checkpoint with more replay bytes to write than this is written in a background thread."""
 
 
 @dataclass
@@ -157,6 +161,7 @@ class CheckpointStore:
         self._previous: Path | None = None  # the last good checkpoint, kept by the next save
         # Manifest whose replay blocks equal the replay's unchanged blocks (hard-link source).
         self._link_source: tuple[Path, dict[str, Any]] | None = None
+        self._job: _SaveJob | None = None  # a checkpoint being written in the background
 
     def published(self) -> list[Path]:
         """Published checkpoint directories, newest first."""
@@ -175,56 +180,86 @@ class CheckpointStore:
 
     # ----------------------------------------------------------------------- save
     def save(self, payload: dict[str, Any], arrays: dict[str, np.ndarray], replay) -> Path:
-        """Write a checkpoint of `payload` (must hold `stamp`, the env-step count), `arrays`
-        (small numpy arrays) and `replay`, publish it, then remove older ones but the last good
-        one. Returns the published directory."""
+        """Checkpoint `payload` (must hold `stamp`, the env-step count), `arrays` (small numpy
+        arrays) and `replay` as they are now, publish it, then remove older checkpoints but
+        the last good one. Returns the directory it is (or will be) published as.
+
+        When the replay blocks to write exceed `BACKGROUND_BYTES`, they are written by a
+        background thread and `save` returns after a snapshot of everything else: the loop
+        goes on while the replay changes elsewhere (`replay.before_change` makes it wait only
+        before changing a block not yet written, and the block being filled is copied up
+        front). The next `save`, `wait` or `load` waits for it to be published."""
+        self.wait()
         self.directory.mkdir(parents=True, exist_ok=True)
         self._remove_debris()
         existing = self.published()
         generation = 1 + (_generation(existing[0]) if existing else 0)
         final = self.directory / f"{CHECKPOINT_PREFIX}{generation:06d}"
-        tmp = self.directory / f".{final.name}.tmp"
-        (tmp / REPLAY_DIR).mkdir(parents=True)
-        files = {
-            STATE_NAME: _write_file(tmp / STATE_NAME, lambda f: torch.save(payload, f)),
-            EPISODES_NAME: _write_file(
-                tmp / EPISODES_NAME,
-                lambda f: np.savez(f, **arrays, **{REPLAY_COUNTERS: replay.counters()}),
-            ),
-        }
-        changed = set(replay.changed_blocks())
-        source_dir, source = self._link_source or (None, None)
-        if source is not None and source["slots_per_block"] != replay.slots_per_block:
+        state = io.BytesIO()
+        torch.save(payload, state)  # the agent's tensors change with the next update
+        arrays = arrays | {REPLAY_COUNTERS: replay.counters()}
+        source = self._link_source
+        if source is not None and source[1]["slots_per_block"] != replay.slots_per_block:
             source = None
+        # What the replay holds now: views of its blocks (changed ones), file names (others).
+        changed = set(replay.changed_blocks())
+        blocks: dict[int, dict[str, np.ndarray] | Path] = {}
         for block in range(replay.num_blocks):
             name = _block_name(block)
-            if block not in changed and source is not None and name in source["files"]:
-                _link_or_copy(source_dir / name, tmp / name)
-                files[name] = source["files"][name]
+            if block not in changed and source is not None and name in source[1]["files"]:
+                blocks[block] = source[0] / name
             else:
-                block_arrays = replay.block_arrays(block)
-                files[name] = _write_file(tmp / name, lambda f, a=block_arrays: np.savez(f, **a))
-        manifest = {
-            "format": FORMAT,
-            "kind": TRAINING_KIND,
-            "generation": generation,
-            "stamp": int(payload["stamp"]),
-            "slots_per_block": int(replay.slots_per_block),
-            "replay_blocks": int(replay.num_blocks),
-            "files": files,
-        }
-        _write_file(tmp / MANIFEST_NAME, lambda f: f.write(json.dumps(manifest).encode()))
-        _fsync_dir(tmp / REPLAY_DIR)
-        _fsync_dir(tmp)
-        os.rename(tmp, final)  # the single step that publishes the checkpoint
-        _fsync_dir(self.directory)
+                changed.add(block)
+                blocks[block] = replay.block_arrays(block)
         replay.mark_saved()
-        keep = {final, self._previous}
-        self._previous, self._link_source = final, (final, manifest)
+        job = _SaveJob(
+            final,
+            generation,
+            int(payload["stamp"]),
+            replay.slots_per_block,
+            state.getvalue(),
+            arrays,
+            blocks,
+            None if source is None else source[1],
+        )
+        self._link_source = None  # until this checkpoint is published
+        changed_bytes = sum(_nbytes(blocks[b]) for b in changed)
+        if changed_bytes <= BACKGROUND_BYTES:
+            self._finish(job, job.run())
+            return final
+        cursor_block = int(replay.counters()[0]) // replay.slots_per_block
+        if isinstance(blocks.get(cursor_block), dict):  # the loop writes there next: a copy
+            blocks[cursor_block] = {k: v.copy() for k, v in blocks[cursor_block].items()}
+        job.pending = {b for b in changed if b != cursor_block}
+        job.replay = replay
+        replay.before_change = job.wait_for_blocks
+        self._job = job
+        job.thread = threading.Thread(target=job.run, name="checkpoint", daemon=True)
+        job.thread.start()
+        return final
+
+    def wait(self) -> None:
+        """Wait for a checkpoint being written in the background to be published; raises
+        `CheckpointError` if writing it failed."""
+        job, self._job = self._job, None
+        if job is not None:
+            job.thread.join()
+            self._finish(job, job.error)
+
+    def _finish(self, job: _SaveJob, error: BaseException | None) -> None:
+        if job.replay is not None:
+            job.replay.before_change = None
+        if error is not None:
+            # The replay counts its blocks as saved: link nothing, write all blocks next time.
+            raise CheckpointError(
+                f"checkpoint {job.final} could not be written ({type(error).__name__}: "
+                f"{error}); the previous checkpoint is intact"
+            ) from error
+        keep = {job.final, self._previous}
+        self._previous, self._link_source = job.final, (job.final, job.manifest)
         for old in self.published():
             if old not in keep:
                 _remove_dir(old)
-        return final
 
     # ----------------------------------------------------------------------- load
     def load(self, replay, check: Callable[[dict[str, Any], Path], None]) -> LoadedCheckpoint:
@@ -233,6 +268,7 @@ class CheckpointStore:
         belong to this run; that is not damage and stops the resume), load the replay in place
         a block at a time (never a second copy of it) and return the rest. A damaged checkpoint
         is skipped for the one before it, with a one-line note on stderr."""
+        self.wait()
         candidates = self.published()
         if not candidates:
             return self._load_legacy(replay, check)
@@ -309,6 +345,85 @@ class CheckpointStore:
                     shutil.rmtree(path, ignore_errors=True)
                 else:
                     path.unlink(missing_ok=True)
+
+
+class _SaveJob:
+    """Writing one checkpoint directory from a snapshot (`CheckpointStore.save`)."""
+
+    def __init__(
+        self,
+        final: Path,
+        generation: int,
+        stamp: int,
+        slots_per_block: int,
+        state: bytes,
+        arrays: dict[str, np.ndarray],
+        blocks: dict[int, dict[str, np.ndarray] | Path],
+        source: dict[str, Any] | None,
+    ) -> None:
+        self.final, self.generation, self.stamp = final, generation, stamp
+        self.slots_per_block, self.state, self.arrays = slots_per_block, state, arrays
+        self.blocks, self.source = blocks, source
+        self.manifest: dict[str, Any] = {}
+        self.error: BaseException | None = None
+        self.replay = None
+        self.thread: threading.Thread | None = None
+        self.pending: set[int] = set()  # blocks the replay must not change yet
+        self._written = threading.Condition()
+
+    def wait_for_blocks(self, first: int, last: int) -> None:
+        """`replay.before_change`: block until blocks first..last are written."""
+        with self._written:
+            while any(first <= b <= last for b in self.pending):
+                self._written.wait()
+
+    def run(self) -> BaseException | None:
+        try:
+            self._write()
+        except BaseException as error:  # reported by `CheckpointStore.wait`
+            self.error = error
+        finally:
+            with self._written:
+                self.pending.clear()
+                self._written.notify_all()
+        return self.error
+
+    def _write(self) -> None:
+        tmp = self.final.with_name(f".{self.final.name}.tmp")
+        (tmp / REPLAY_DIR).mkdir(parents=True)
+        files = {
+            STATE_NAME: _write_file(tmp / STATE_NAME, lambda f: f.write(self.state)),
+            EPISODES_NAME: _write_file(tmp / EPISODES_NAME, lambda f: np.savez(f, **self.arrays)),
+        }
+        for block, content in self.blocks.items():
+            name = _block_name(block)
+            if isinstance(content, Path):
+                _link_or_copy(content, tmp / name)
+                files[name] = self.source["files"][name]
+                continue
+            files[name] = _write_file(tmp / name, lambda f, a=content: np.savez(f, **a))
+            with self._written:
+                self.pending.discard(block)
+                self._written.notify_all()
+        self.manifest = {
+            "format": FORMAT,
+            "kind": TRAINING_KIND,
+            "generation": self.generation,
+            "stamp": self.stamp,
+            "slots_per_block": int(self.slots_per_block),
+            "replay_blocks": len(self.blocks),
+            "files": files,
+        }
+        manifest = json.dumps(self.manifest).encode()
+        _write_file(tmp / MANIFEST_NAME, lambda f: f.write(manifest))
+        _fsync_dir(tmp / REPLAY_DIR)
+        _fsync_dir(tmp)
+        os.rename(tmp, self.final)  # the single step that publishes the checkpoint
+        _fsync_dir(self.final.parent)
+
+
+def _nbytes(content: dict[str, np.ndarray] | Path) -> int:
+    return 0 if isinstance(content, Path) else sum(a.nbytes for a in content.values())
 
 
 def latest_state_path(directory: Path) -> Path:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,6 +158,9 @@ class ReplayBuffer:
         self.slots_per_block = max(1, BLOCK_BYTES // bytes_per_slot)
         """Slots per checkpoint block (`block_arrays`)."""
         self._changed = np.ones(math.ceil(capacity / self.slots_per_block), bool)
+        self.before_change: Callable[[int, int], None] | None = None
+        """Called as ``before_change(first_block, last_block)`` before those blocks change: a
+        checkpoint written in the background waits there until it has saved them."""
 
     def __len__(self) -> int:
         """Number of stored transitions."""
@@ -227,7 +230,10 @@ class ReplayBuffer:
             self._num_episodes -= 1
 
     def _mark_changed(self, start: int, stop: int) -> None:
-        self._changed[start // self.slots_per_block : (stop - 1) // self.slots_per_block + 1] = True
+        first, last = start // self.slots_per_block, (stop - 1) // self.slots_per_block
+        if self.before_change is not None:
+            self.before_change(first, last)
+        self._changed[first : last + 1] = True
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """The stored data as plain numpy arrays (for `numpy.savez`; no pickling needed).
