@@ -278,11 +278,13 @@ class Trainer:
                     self.save_checkpoint()
         except KeyboardInterrupt:
             self.save_checkpoint()
+            self.checkpoints.wait()
             bar.close()
             logger.close()
             print(f"\ninterrupted: checkpoint saved in {self.checkpoint_dir}; run again to resume")
             raise
         except NonFiniteLossError as error:
+            self.checkpoints.wait()
             bar.close()
             logger.close()
             raise SystemExit(
@@ -296,6 +298,7 @@ class Trainer:
             last_eval = self.evaluate()
             logger.log(self.progress.env_steps, self.progress.wall_time_s, last_eval)
         self.save_checkpoint()
+        self.checkpoints.wait()
         self.export_policy(self.run_dir / POLICY_NAME)
         logger.close()
         return last_eval
@@ -383,7 +386,8 @@ class Trainer:
 
     # --------------------------------------------------------------- checkpoints
     def save_checkpoint(self) -> None:
-        """Write and publish the resumable state (`checkpoint.CheckpointStore.save`)."""
+        """Write and publish the resumable state (`checkpoint.CheckpointStore.save`; a large
+        replay is written in the background, `self.checkpoints.wait()` waits for it)."""
         stamp = self.progress.env_steps
         arrays: dict[str, np.ndarray] = {}
         for i, env in enumerate(self.envs):
