@@ -1,0 +1,246 @@
+"""Aggregate success over training seeds with rliable (Agarwal et al., "Deep RL at the Edge of
+the Statistical Precipice", NeurIPS 2021): the library does the statistics, this module only
+shapes our results into its score matrices.
+
+A *run* is one training run (preset x overrides x training seed). Its *scores* are success
+rates on the test tasks, one per evaluation condition: the target speeds of Table 1, or the task
+families of Table 2 (`obstacles`, `blocked`). A row's scores form the matrix rliable expects,
+`(num_runs, num_conditions)`, and the stratified bootstrap resamples runs within each condition.
+Sample-efficiency curves use the validation success that training logs (`eval/success_rate` in
+each run's `metrics.csv`, on validation seeds) as a `(num_runs, 1, num_steps)` array.
+
+Every estimate takes a `seed`: rliable's bootstrap draws from NumPy's global generator, so each
+call seeds it for its own duration and restores the caller's state afterwards.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from rliable import library as rly
+from rliable import metrics
+
+CONFIDENCE = 0.95
+"""Coverage of every interval (two-sided)."""
+DEFAULT_REPS = 2_000
+"""Bootstrap replications per estimate (rliable's own default for profiles); with 3-5 runs per
+row the interval's ends move by about a point between seeds of the bootstrap."""
+POI_REPS = 1_000
+"""Replications for the probability of improvement: each one runs a Mann-Whitney U test per
+condition, about 100 times the cost of a mean."""
+DEFAULT_SEED = 0
+PROFILE_TAUS = np.linspace(0.0, 1.0, 101)
+"""Success thresholds of the performance profiles."""
+
+
+@contextlib.contextmanager
+def seeded_numpy(seed: int) -> Iterator[None]:
+    """Seed NumPy's global generator (which rliable's bootstrap uses) inside the block, and
+    restore the caller's state afterwards."""
+    # The legacy global API on purpose: it is what rliable draws from.
+    state = np.random.get_state()  # noqa: NPY002
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate and its 95% stratified-bootstrap interval."""
+
+    value: float
+    low: float
+    high: float
+
+    def contains(self, x: float) -> bool:
+        return self.low - 1e-12 <= x <= self.high + 1e-12
+
+    def as_dict(self) -> dict[str, float]:
+        return {"value": self.value, "low": self.low, "high": self.high}
+
+
+@dataclass(frozen=True)
+class RowAggregate:
+    """Mean and IQM success of one row over its runs and conditions."""
+
+    num_runs: int
+    num_conditions: int
+    mean: Estimate
+    iqm: Estimate
+
+
+def score_matrix(run_scores: Sequence[Sequence[float]]) -> np.ndarray:
+    """Runs' scores (one list per run, one value per condition, same order) as rliable's
+    `(num_runs, num_conditions)` float array; a ValueError for ragged or empty input."""
+    matrix = np.asarray(run_scores, dtype=float)
+    if matrix.ndim == 1:
+        matrix = matrix[:, None]
+    if matrix.ndim != 2 or matrix.size == 0:
+        raise ValueError(f"need a (runs, conditions) score matrix, got shape {matrix.shape}")
+    if not np.all(np.isfinite(matrix)):
+        raise ValueError("scores must be finite")
+    return matrix
+
+
+def _mean_and_iqm(scores: np.ndarray) -> np.ndarray:
+    return np.array([metrics.aggregate_mean(scores), metrics.aggregate_iqm(scores)])
+
+
+def aggregate_rows(
+    scores: Mapping[str, np.ndarray], reps: int = DEFAULT_REPS, seed: int = DEFAULT_SEED
+) -> dict[str, RowAggregate]:
+    """Mean and IQM (25% trimmed mean over runs x conditions) of each row's score matrix, with
+    95% stratified-bootstrap percentile intervals (`rliable.library.get_interval_estimates`)."""
+    with seeded_numpy(seed):
+        points, intervals = rly.get_interval_estimates(
+            dict(scores), _mean_and_iqm, reps=reps, confidence_interval_size=CONFIDENCE
+        )
+    out = {}
+    for name, matrix in scores.items():
+        point, (low, high) = points[name], intervals[name]
+        out[name] = RowAggregate(
+            num_runs=matrix.shape[0],
+            num_conditions=matrix.shape[1],
+            mean=Estimate(float(point[0]), float(low[0]), float(high[0])),
+            iqm=Estimate(float(point[1]), float(low[1]), float(high[1])),
+        )
+    return out
+
+
+def probability_of_improvement(
+    scores: Mapping[str, np.ndarray],
+    pairs: Sequence[tuple[str, str]],
+    reps: int = POI_REPS,
+    seed: int = DEFAULT_SEED,
+) -> dict[tuple[str, str], Estimate]:
+    """P(X > Y) for each pair (X, Y) of row names: the probability that a run of X scores higher
+    than a run of Y on a condition (ties count one half; Mann-Whitney U over both rows' runs),
+    averaged over conditions (`rliable.metrics.probability_of_improvement`). Intervals resample
+    each row's runs independently (`StratifiedIndependentBootstrap`). Both rows need the same
+    conditions in the same order."""
+    for x, y in pairs:
+        if scores[x].shape[1] != scores[y].shape[1]:
+            raise ValueError(
+                f"rows {x!r} and {y!r} have {scores[x].shape[1]} and {scores[y].shape[1]} "
+                "conditions; probability of improvement compares the same conditions"
+            )
+    pair_scores = {f"{x}\x00{y}": [scores[x], scores[y]] for x, y in pairs}
+    with seeded_numpy(seed):
+        points, intervals = rly.get_interval_estimates(
+            pair_scores,
+            metrics.probability_of_improvement,
+            reps=reps,
+            confidence_interval_size=CONFIDENCE,
+        )
+    out = {}
+    for (x, y), key in zip(pairs, pair_scores, strict=True):
+        low, high = np.ravel(intervals[key])
+        out[(x, y)] = Estimate(float(points[key]), float(low), float(high))
+    return out
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A performance profile: the fraction of (run, condition) scores above each threshold."""
+
+    taus: np.ndarray
+    fraction: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+
+def performance_profiles(
+    scores: Mapping[str, np.ndarray],
+    taus: np.ndarray = PROFILE_TAUS,
+    reps: int = DEFAULT_REPS,
+    seed: int = DEFAULT_SEED,
+) -> dict[str, Profile]:
+    """Each row's score distribution (`rliable.library.create_performance_profile`): the
+    fraction of its runs x conditions whose success exceeds tau, with 95% bootstrap bands."""
+    taus = np.asarray(taus, dtype=float)
+    with seeded_numpy(seed):
+        fractions, intervals = rly.create_performance_profile(
+            dict(scores), taus, reps=reps, confidence_interval_size=CONFIDENCE
+        )
+    return {
+        name: Profile(taus, np.asarray(fractions[name]), *np.asarray(intervals[name]))
+        for name in scores
+    }
+
+
+@dataclass(frozen=True)
+class Curve:
+    """A row's sample-efficiency curve: IQM and mean over runs at each env step, with bands."""
+
+    steps: np.ndarray
+    num_runs: int
+    iqm: np.ndarray
+    iqm_low: np.ndarray
+    iqm_high: np.ndarray
+    mean: np.ndarray
+    mean_low: np.ndarray
+    mean_high: np.ndarray
+
+
+def align_curves(
+    curves: Sequence[tuple[Sequence[int], Sequence[float]]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Runs' (steps, values) evaluated at the steps every run has (a run that stopped early or
+    evaluates at other steps limits the curve to the common ones): `(steps, (runs, steps))`."""
+    if not curves:
+        raise ValueError("no curves to align")
+    common = set(curves[0][0])
+    for steps, _ in curves[1:]:
+        common &= set(steps)
+    steps = np.array(sorted(common), dtype=np.int64)
+    values = np.empty((len(curves), len(steps)))
+    for i, (run_steps, run_values) in enumerate(curves):
+        by_step = dict(zip(run_steps, run_values, strict=True))
+        values[i] = [by_step[s] for s in steps]
+    return steps, values
+
+
+def sample_efficiency_curves(
+    curves: Mapping[str, Sequence[tuple[Sequence[int], Sequence[float]]]],
+    reps: int = DEFAULT_REPS,
+    seed: int = DEFAULT_SEED,
+) -> dict[str, Curve]:
+    """Per row, success against env steps over its runs: IQM and mean at every common step with
+    95% stratified-bootstrap bands (rliable's sample-efficiency recipe: one interval estimate of
+    a per-step aggregate on a `(runs, 1, steps)` array). Rows whose runs share no step are
+    left out."""
+    arrays, step_lists = {}, {}
+    for name, run_curves in curves.items():
+        steps, values = align_curves(run_curves)
+        if len(steps):
+            arrays[name], step_lists[name] = values[:, None, :], steps
+
+    def per_step(scores: np.ndarray) -> np.ndarray:
+        means = [metrics.aggregate_mean(scores[..., t]) for t in range(scores.shape[-1])]
+        iqms = [metrics.aggregate_iqm(scores[..., t]) for t in range(scores.shape[-1])]
+        return np.array(means + iqms)
+
+    with seeded_numpy(seed):
+        points, intervals = rly.get_interval_estimates(
+            arrays, per_step, reps=reps, confidence_interval_size=CONFIDENCE
+        )
+    out = {}
+    for name, steps in step_lists.items():
+        n = len(steps)
+        point, (low, high) = points[name], intervals[name]
+        out[name] = Curve(
+            steps=steps,
+            num_runs=arrays[name].shape[0],
+            mean=point[:n],
+            mean_low=low[:n],
+            mean_high=high[:n],
+            iqm=point[n:],
+            iqm_low=low[n:],
+            iqm_high=high[n:],
+        )
+    return out
