@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -35,7 +34,7 @@ from common import write_csv
 
 import clamgen  # noqa: F401
 from clamgen.envs import ReachEnv
-from clamgen.experiments.config import EVAL_SEED_BASE, load_preset
+from clamgen.experiments.config import VALIDATION_SEEDS, load_preset
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
 from clamgen.experiments.train import Trainer
 
@@ -61,9 +60,7 @@ class ScaledReward(gym.Wrapper):
 
 def eval_success(policy) -> float:
     env = ReachEnv(num_obstacles=0)
-    return summarize(evaluate(env, policy, EVAL_SEED_BASE + np.arange(NUM_EVAL_TASKS)))[
-        "success_rate"
-    ]
+    return summarize(evaluate(env, policy, VALIDATION_SEEDS.seeds(NUM_EVAL_TASKS)))["success_rate"]
 
 
 def run_ours(args) -> dict:

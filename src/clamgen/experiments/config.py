@@ -14,16 +14,83 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from clamgen.agents.sac import SACConfig
 from clamgen.envs import ENV_IDS
 from clamgen.replay.buffer import ReplayConfig
 from clamgen.schedules import Constant, LinearRamp, Schedule
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
-# Evaluation tasks come from env.reset(seed=EVAL_SEED_BASE + i); training envs are seeded with
-# small integers (seed * 1000 + env index) and then continue their own random streams, so the
-# two sets of tasks never share a seed.
-EVAL_SEED_BASE = 1_000_000_000
+
+
+# ------------------------------------------------------------------------------- seeds
+@dataclass(frozen=True)
+class SeedRange:
+    """Reset seeds `start <= seed < stop` set aside for one purpose."""
+
+    name: str
+    start: int
+    stop: int
+
+    def __contains__(self, seed: object) -> bool:
+        return isinstance(seed, int | np.integer) and self.start <= int(seed) < self.stop
+
+    def seeds(self, count: int, first: int | None = None) -> np.ndarray:
+        """`count` consecutive seeds (int64) from `first` (default: the range's start); a
+        ValueError if any falls outside the range."""
+        first = self.start if first is None else int(first)
+        if count < 0:
+            raise ValueError(f"count must be >= 0, got {count}")
+        if count and (first not in self or first + count - 1 not in self):
+            raise ValueError(
+                f"seeds {first}..{first + count - 1} are not all {self.name} seeds "
+                f"({self.start}..{self.stop - 1}){_range_hint(first)}"
+            )
+        return first + np.arange(count, dtype=np.int64)
+
+    def __str__(self) -> str:
+        return f"{self.name} seeds {self.start}..{self.stop - 1}"
+
+
+# Three disjoint ranges of env reset seeds (every task is a function of its seed):
+# - training: the environments a policy learns in (`loop.seed * TRAINING_ENV_SEED_STRIDE + env
+#   index`, after which each env continues its own random stream) and any scenes rendered for
+#   pretraining;
+# - validation: periodic evaluation during training and every choice among runs or settings;
+# - test: the tables (`clamgen eval --table 1/2`); nothing is chosen by looking at them. The
+#   test range starts where the committed tables' seeds always started, so they stay valid.
+TRAINING_SEEDS = SeedRange("training", 0, 1_000_000_000)
+TEST_SEEDS = SeedRange("test", 1_000_000_000, 2_000_000_000)
+VALIDATION_SEEDS = SeedRange("validation", 2_000_000_000, 3_000_000_000)
+SEED_RANGES = (TRAINING_SEEDS, VALIDATION_SEEDS, TEST_SEEDS)
+# Training env i of a run with loop seed s is reset with seed s * stride + i.
+TRAINING_ENV_SEED_STRIDE = 1000
+MAX_TRAINING_LOOP_SEED = TRAINING_SEEDS.stop // TRAINING_ENV_SEED_STRIDE - 1
+
+
+def _range_hint(seed: int) -> str:
+    for seed_range in SEED_RANGES:
+        if seed in seed_range:
+            return f"; {seed} is a {seed_range.name} seed"
+    return ""
+
+
+def check_table_seeds(first: int, count: int) -> np.ndarray:
+    """The seeds of a table's `count` tasks from `first`: test seeds only (a ValueError names
+    the range a refused seed belongs to, e.g. validation)."""
+    return TEST_SEEDS.seeds(count, first)
+
+
+def check_training_seed(seed: int) -> int:
+    """A training loop seed whose env seeds all lie in the training range; a ValueError else."""
+    if not (isinstance(seed, int | np.integer) and 0 <= seed <= MAX_TRAINING_LOOP_SEED):
+        raise ValueError(
+            f"loop.seed must be in 0..{MAX_TRAINING_LOOP_SEED} so that its env seeds (seed * "
+            f"{TRAINING_ENV_SEED_STRIDE} + env index) are training seeds, got {seed}"
+            f"{_range_hint(seed) if seed not in TRAINING_SEEDS else ''}"
+        )
+    return int(seed)
 
 
 @dataclass(frozen=True)
@@ -81,7 +148,8 @@ class LoopConfig:
     log_every_steps: int = 1_000
     """Write metrics (CSV, TensorBoard) every this many env steps."""
     seed: int = 0
-    """Seed of the environments, the agent and the replay sampling."""
+    """Seed of the environments, the agent and the replay sampling; 0..999999, so that env i's
+    reset seed, seed * 1000 + i, is a training seed (`TRAINING_SEEDS`)."""
     torch_threads: int = 1
     """Threads PyTorch may use. One by default: measured on the 2-core machine, a SAC update of
     the 256x256 networks takes 11 ms on 1 thread, and 460 ms on 2 threads when another process
@@ -98,6 +166,7 @@ class LoopConfig:
         for name in ("eval_every_steps", "checkpoint_every_steps", "log_every_steps"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0")
+        check_training_seed(self.seed)  # never a validation or test seed
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from clamgen.envs import ENV_IDS, ReachEnv
 from clamgen.envs.reach_env import EnvState
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import (
-    EVAL_SEED_BASE,
+    VALIDATION_SEEDS,
     EnvConfig,
     TrainConfig,
     config_from_json,
@@ -373,8 +373,9 @@ class Trainer:
         return metrics
 
     def evaluate(self) -> dict[str, float]:
-        """Deterministic policy on `num_eval_episodes` fixed evaluation seeds."""
-        seeds = EVAL_SEED_BASE + np.arange(self.config.loop.num_eval_episodes)
+        """Deterministic policy on the first `num_eval_episodes` validation seeds (never the
+        tables' test seeds: whatever is chosen by watching this must not leak into them)."""
+        seeds = VALIDATION_SEEDS.seeds(self.config.loop.num_eval_episodes)
         records = evaluate(self.eval_env, SACPolicy(self.agent), seeds)
         summary = {f"eval/{k}": v for k, v in summarize(records).items()}
         summary["eval/env_steps"] = float(self.progress.env_steps)
