@@ -209,6 +209,21 @@ def test_obstacle_tasks_are_valid_over_many_seeds():
         assert np.linalg.norm(tip_start - task.target_position_m) >= 0.1 - 1e-9
 
 
+def test_each_id_samples_its_task_family():
+    assert {
+        env_id: (make(env_id).num_obstacles, make(env_id).task_family) for env_id in ENV_IDS
+    } == {
+        "CLAMGen/Reach-v0": (0, "reach"),
+        "CLAMGen/ReachObstacles-v0": (2, "obstacles"),
+        "CLAMGen/ReachBlocked-v0": (2, "blocked"),
+    }
+    # The same seed gives different tasks in the two obstacle families.
+    standard, blocked = make(ENV_IDS[1]), make(ENV_IDS[2])
+    standard.reset(seed=1)
+    blocked.reset(seed=1)
+    assert not np.array_equal(standard.task.target_position_m, blocked.task.target_position_m)
+
+
 def test_reset_replays_a_given_task():
     env = make(ENV_IDS[1])
     env.reset(seed=11)
@@ -240,6 +255,9 @@ def test_bad_input_is_refused_clearly():
         ({"image_size": 4, "num_views": 1, "obs_mode": "both"}, "image_size"),
         ({"collision_penalty": -1.0}, "collision_penalty"),
         ({"render_mode": "human"}, "render_mode"),
+        ({"task_family": "hard", "num_obstacles": 2}, "task_family must be one of"),
+        ({"task_family": "blocked"}, "needs num_obstacles >= 1"),
+        ({"task_family": "reach", "num_obstacles": 2}, "needs num_obstacles = 0"),
     ]:
         with pytest.raises(ValueError, match=message):
             ReachEnv(**kwargs)

@@ -1,4 +1,5 @@
-"""Gymnasium environments, registered as `CLAMGen/Reach-v0` and `CLAMGen/ReachObstacles-v0`."""
+"""Gymnasium environments, registered as `CLAMGen/Reach-v0`, `CLAMGen/ReachObstacles-v0` and
+`CLAMGen/ReachBlocked-v0` (obstacle tasks whose obstacle-blind path is blocked)."""
 
 import gymnasium as gym
 
@@ -11,7 +12,13 @@ from clamgen.envs.reach_env import (
     ReachEnv,
 )
 
-ENV_IDS = ("CLAMGen/Reach-v0", "CLAMGen/ReachObstacles-v0")
+ENV_IDS = ("CLAMGen/Reach-v0", "CLAMGen/ReachObstacles-v0", "CLAMGen/ReachBlocked-v0")
+# Env id -> (number of obstacles, task family in `clamgen.tasks.TASK_FAMILIES`).
+ENV_TASKS = {
+    "CLAMGen/Reach-v0": (0, "reach"),
+    "CLAMGen/ReachObstacles-v0": (2, "obstacles"),
+    "CLAMGen/ReachBlocked-v0": (2, "blocked"),
+}
 
 
 def register_envs() -> None:
@@ -19,13 +26,14 @@ def register_envs() -> None:
     entry = "clamgen.envs.reach_env:ReachEnv"
     # Through `gym.make`, Gymnasium's TimeLimit truncates (`max_episode_steps=` overrides it);
     # a directly constructed ReachEnv truncates by itself.
-    for env_id, num_obstacles in zip(ENV_IDS, (0, 2), strict=True):
+    for env_id, (num_obstacles, family) in ENV_TASKS.items():
         if env_id not in gym.registry:
+            kwargs = {"num_obstacles": num_obstacles, "task_family": family}
             gym.register(
                 env_id,
                 entry_point=entry,
                 max_episode_steps=MAX_EPISODE_STEPS,
-                kwargs={"num_obstacles": num_obstacles, "max_episode_steps": None},
+                kwargs={**kwargs, "max_episode_steps": None},
             )
 
 
@@ -34,6 +42,7 @@ register_envs()
 __all__ = [
     "CONTROL_DT_S",
     "ENV_IDS",
+    "ENV_TASKS",
     "MAX_EPISODE_STEPS",
     "MAX_JOINT_DELTA_RAD",
     "SUCCESS_DISTANCE_M",

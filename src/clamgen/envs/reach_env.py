@@ -27,8 +27,10 @@ A `Dict` following the goal-conditioned convention:
 `info["reward_collision"]` and add up to the reward.
 
 ## Starting state
-Target and start joints sampled as `clamgen.tasks.reach` describes; with obstacles the goal is
-reachable by a collision-free IK solution and the start is collision-free.
+Target and start joints sampled by the task family (`clamgen.tasks.TASK_FAMILIES`): "reach"
+and "obstacles" as `clamgen.tasks.reach` describes (with obstacles the goal is reachable by a
+collision-free IK solution and the start is collision-free); "blocked" as
+`clamgen.tasks.blocked` describes (as "obstacles", and the obstacle-blind path collides).
 
 ## Episode end
 Terminates on success; truncates after `max_episode_steps` (100) steps.
@@ -48,7 +50,7 @@ from clamgen.sim import constants as C
 from clamgen.sim.render import MultiViewRenderer
 from clamgen.sim.scene import Obstacles, Scene
 from clamgen.sim.state import SimState, images_from_render, render_state
-from clamgen.tasks import reach
+from clamgen.tasks import TASK_FAMILIES, reach
 
 MAX_JOINT_DELTA_RAD = 0.05
 CONTROL_DT_S = 0.05
@@ -76,7 +78,9 @@ class ReachEnv(gym.Env):
     """UR5 reaching with a suction gripper; see the module docstring for the env card.
 
     Args:
-        num_obstacles: 0 (Reach) or more (ReachObstacles uses 2).
+        num_obstacles: 0 (Reach) or more (ReachObstacles and ReachBlocked use 2).
+        task_family: a name in `clamgen.tasks.TASK_FAMILIES`; None: "obstacles" when
+            `num_obstacles` > 0, else "reach".
         num_views: number of cameras (0 to 4) rendered into `images`.
         image_size: height = width of each view in pixels.
         target_speed: m/s (paper: 0, 0.05, 0.1, 0.2) or "variable".
@@ -105,9 +109,20 @@ class ReachEnv(gym.Env):
         collision_margin_m: float = 0.0,
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
         render_mode: str | None = None,
+        task_family: str | None = None,
     ) -> None:
         if not 0 <= num_obstacles <= C.MAX_OBSTACLES:
             raise ValueError(f"num_obstacles must be in 0..{C.MAX_OBSTACLES}, got {num_obstacles}")
+        task_family = task_family or ("obstacles" if num_obstacles else "reach")
+        if task_family not in TASK_FAMILIES:
+            raise ValueError(
+                f"task_family must be one of {list(TASK_FAMILIES)}, got {task_family!r}"
+            )
+        if TASK_FAMILIES[task_family][1] != (num_obstacles > 0):
+            raise ValueError(
+                f"task_family {task_family!r} needs num_obstacles "
+                f"{'>= 1' if TASK_FAMILIES[task_family][1] else '= 0'}, got {num_obstacles}"
+            )
         if not 0 <= num_views <= C.NUM_CAMERAS:
             raise ValueError(f"num_views must be in 0..{C.NUM_CAMERAS}, got {num_views}")
         if obs_mode not in OBS_MODES:
@@ -121,6 +136,7 @@ class ReachEnv(gym.Env):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.num_obstacles = num_obstacles
+        self.task_family = task_family
         self.num_views = num_views if obs_mode != "joints" else 0
         self.image_size = int(image_size)
         self.target_speed = reach.validate_speed(target_speed)
@@ -197,12 +213,8 @@ class ReachEnv(gym.Env):
             raise ValueError(f"unknown reset options {sorted(unknown)}; known: ['task']")
         task = options.get("task")
         if task is None:
-            if self.num_obstacles:
-                task = reach.sample_obstacle_task(
-                    self.np_random, self.scene, self.num_obstacles, self.target_speed
-                )
-            else:
-                task = reach.sample_reach_task(self.np_random, self.scene, self.target_speed)
+            sample = TASK_FAMILIES[self.task_family][0]
+            task = sample(self.np_random, self.scene, self.num_obstacles, self.target_speed)
         elif not isinstance(task, reach.Task):
             raise TypeError(f"options['task'] must be a clamgen Task, got {type(task).__name__}")
         self._task = task
