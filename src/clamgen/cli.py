@@ -208,13 +208,20 @@ class EvalConfig:
     """Reproduce a row set of the paper's Table 1 (reaching) or Table 2 (obstacles)."""
 
     table: Literal[1, 2] = 1
-    """1: static and moving targets, no obstacles; 2: static targets past two obstacles."""
+    """1: static and moving targets, no obstacles; 2: static targets past two obstacles, on the
+    standard obstacle tasks and on the blocked-path tasks."""
     policy: PolicyName | Path = "base"
     """A policy shipped with the package (`base`, `residual-2views`, `image-only`), a baseline
     (`ik`: IK interpolation, `rrt`: RRT-Connect with the full scene model), or a policy file
     written by `clamgen train` / `clamgen train-residual` (`RUN_DIR/policy.pt`)."""
     num_tasks: int = 200
-    """Evaluation tasks per speed row (the paper: 200)."""
+    """Evaluation tasks per speed row, or per task family of Table 2 (the paper: 200)."""
+    first_seed: int = 1_000_000_000
+    """Seed of the first task (task i: first_seed + i). Tables take test seeds only
+    (`clamgen.experiments.config.TEST_SEEDS`); validation seeds are refused."""
+    families: tuple[str, ...] = ("obstacles", "blocked")
+    """Table 2 task families: `obstacles` (CLAMGen/ReachObstacles-v0), `blocked`
+    (CLAMGen/ReachBlocked-v0: the obstacle-blind path collides)."""
     speeds: tuple[str, ...] = ("0", "0.05", "0.1", "0.2", "variable")
     """Target speeds in m/s, or `variable`, one table row each."""
     out: Path | None = None
@@ -238,12 +245,20 @@ def evaluate_table(config: EvalConfig) -> list:
     if config.table not in (1, 2):
         raise SystemExit(f"--table must be 1 or 2, got {config.table}")
     from clamgen.experiments.checkpoint import CheckpointError
+    from clamgen.experiments.config import check_table_seeds
     from clamgen.experiments.policies import load_policy, policy_label, policy_observation
-    from clamgen.experiments.tables import table1, table1_markdown, write_table1
+    from clamgen.experiments.tables import TABLE2_FAMILIES, table1, table1_markdown, write_table1
     from clamgen.tasks.reach import validate_speed
 
     if config.num_tasks < 1:
         raise SystemExit("num_tasks must be >= 1")
+    try:
+        check_table_seeds(config.first_seed, config.num_tasks)
+    except ValueError as error:
+        raise SystemExit(f"bad --first-seed: {error}") from error
+    unknown = set(config.families) - set(TABLE2_FAMILIES)
+    if unknown or not config.families:
+        raise SystemExit(f"--families must be among {TABLE2_FAMILIES}, got {config.families}")
     if config.torch_threads < 1:
         raise SystemExit("torch_threads must be >= 1")
     import torch
@@ -260,13 +275,14 @@ def evaluate_table(config: EvalConfig) -> list:
     label = policy_label(config.policy)
     out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
     if config.table == 2:
-        return [_evaluate_table2(config, policy, source, label, out, env_kwargs)]
+        return _evaluate_table2(config, policy, source, label, out, env_kwargs)
     print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")
     rows = table1(
         policy,
         config.num_tasks,
         speeds,
         env_kwargs=env_kwargs,
+        first_seed=config.first_seed,
         progress=lambda row: print(
             f"  speed {row.label():>16}: success {row.success_rate:.3f}, path ratio "
             f"{row.path_ratio:.3f}, {row.median_act_ms:.4f} ms/action"
@@ -276,6 +292,7 @@ def evaluate_table(config: EvalConfig) -> list:
         "policy": source,
         "observation": policy_observation(policy),
         "num_tasks": config.num_tasks,
+        "first_seed": config.first_seed,
         "command": "clamgen eval " + " ".join(sys.argv[2:]),
     }
     write_table1(rows, out, meta)
@@ -341,23 +358,28 @@ def _render_config(argv: list[str]):
 
 
 def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_kwargs: dict):
-    from clamgen.experiments.tables import table2_markdown, table2_row
+    """One Table 2 row name, one `ObstacleRow` per task family (written together)."""
+    from clamgen.experiments.tables import FAMILY_TITLES, table2_markdown, table2_row, write_table2
 
     name = config.name or TABLE2_ROW_NAMES.get(config.policy, label)
-    print(f"evaluating {source} on {config.num_tasks} held-out obstacle tasks ...")
-    row = table2_row(name, policy, config.num_tasks, env_kwargs)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for family in config.families:
+        print(f"evaluating {source} on {config.num_tasks} held-out {FAMILY_TITLES[family]} ...")
+        rows.append(
+            table2_row(name, policy, config.num_tasks, env_kwargs, family, config.first_seed)
+        )
+        low, high = rows[-1].success_interval
+        print(f"  success {rows[-1].success_rate:.3f} (95% Wilson interval {low:.3f}-{high:.3f})")
     meta = {
         "policy": source,
         "num_tasks": config.num_tasks,
+        "first_seed": config.first_seed,
         "command": "clamgen eval " + " ".join(sys.argv[2:]),
     }
-    out.with_suffix(".json").write_text(json.dumps({**meta, "rows": [row.__dict__]}, indent=2))
-    markdown = table2_markdown([row])
-    out.with_suffix(".md").write_text(markdown + "\n")
-    print(markdown)
+    write_table2(rows, out, meta)
+    print(table2_markdown(rows))
     print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
-    return row
+    return rows
 
 
 @dataclass(frozen=True)

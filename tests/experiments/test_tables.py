@@ -7,15 +7,16 @@ import pytest
 
 from clamgen.baselines import IKInterpolationPolicy
 from clamgen.cli import EvalConfig, evaluate_table
+from clamgen.experiments.config import TEST_SEEDS
 from clamgen.experiments.evaluate import EpisodeRecord
 from clamgen.experiments.tables import (
+    Z_95,
     ObstacleRow,
-    blocked_success,
-    blocked_tasks,
     path_ratio,
     table1,
     table1_markdown,
     table2_markdown,
+    wilson_interval,
     write_table1,
 )
 
@@ -78,21 +79,92 @@ def test_eval_command_errors_are_clear(tmp_path):
     assert (tmp_path / "ik.md").exists()
 
 
-def test_table2_blocked_column_scores_rows_on_the_tasks_ik_interpolation_failed():
-    def row(name, success):
-        rate = sum(success) / len(success)
-        return ObstacleRow(name, len(success), rate, 0.0, rate, 0.3, 0.1, task_success=success)
+def test_wilson_interval_matches_hand_computed_values():
+    # 50/100: centre 0.5, half width 1.96 sqrt(0.0025 + 1.96^2 / 40000) / (1 + 1.96^2 / 100).
+    low, high = wilson_interval(50, 100)
+    assert low == pytest.approx(0.40383, abs=1e-5) and high == pytest.approx(0.59617, abs=1e-5)
+    # 0/n and n/n: one-sided, z^2 / (n + z^2) wide, still inside [0, 1].
+    assert wilson_interval(0, 200) == (0.0, pytest.approx(Z_95**2 / (200 + Z_95**2)))
+    assert wilson_interval(200, 200) == (pytest.approx(200 / (200 + Z_95**2)), 1.0)
+    with pytest.raises(ValueError, match="successes"):
+        wilson_interval(3, 2)
 
-    rows = [
-        row("IK interpolation (no obstacle model)", [True, False, True, False]),
-        row("CLAMGen, 2 RGBD views", [True, True, False, False]),
-        ObstacleRow("old row", 4, 0.5, 0.0, 0.5, 0.3, 0.1),  # written before per-task results
-    ]
-    blocked = blocked_tasks(rows)
-    np.testing.assert_array_equal(blocked, [False, True, False, True])
-    assert blocked_success(rows[1], blocked) == 0.5 and blocked_success(rows[2], blocked) is None
-    lines = table2_markdown(rows).splitlines()
-    assert "success on blocked tasks (n=2)" in lines[0]
-    assert "| CLAMGen, 2 RGBD views | 0.500 | 0.76 | 0.500 |" in lines[3]
-    assert "| old row | 0.500 | - | - |" in lines[4]
-    assert "blocked" not in table2_markdown(rows[1:])  # no IK row: no column
+
+def obstacle_row(name, family, success, collided, reached, plan=None):
+    """A row from per-task outcomes (success = reached and not collided)."""
+    n = len(collided)
+    success_rate = sum(r and not c for r, c in zip(reached, collided, strict=True)) / n
+    assert success_rate == sum(success) / n
+    return ObstacleRow(
+        name,
+        n,
+        success_rate,
+        sum(collided) / n,
+        sum(reached) / n,
+        0.3,
+        0.1,
+        plan_time_median_s=plan,
+        plan_time_p95_s=plan,
+        task_success=success,
+        family=family,
+    )
+
+
+def test_failure_split_counts_each_kind_of_failure_once():
+    # 6 tasks: 2 successes, 1 collided and never reached, 2 stalled, 1 reached after a collision.
+    reached = [True, True, False, False, False, True]
+    collided = [False, False, True, False, False, True]
+    success = [True, True, False, False, False, False]
+    row = obstacle_row("r", "blocked", success, collided, reached)
+    assert row.num_successes == 2
+    assert row.failure_split == {
+        "collided_never_reached": 1,
+        "stalled_no_collision": 2,
+        "reached_after_collision": 1,
+    }
+
+
+def test_table2_markdown_puts_both_families_side_by_side_with_intervals():
+    ik_std = obstacle_row(
+        "IK interpolation (no obstacle model)",
+        "obstacles",
+        [True] * 3 + [False],
+        [False] * 3 + [True],
+        [True] * 3 + [False],
+    )
+    ik_blk = obstacle_row(
+        "IK interpolation (no obstacle model)", "blocked", [False] * 4, [True] * 4, [False] * 4
+    )
+    rrt_std = obstacle_row(
+        "RRT with full model", "obstacles", [True] * 4, [False] * 4, [True] * 4, 0.05
+    )
+    old = ObstacleRow("no HER (2 views)", 4, 0.5, 0.25, 0.75, 0.3, 0.1)  # written before families
+    lines = table2_markdown([ik_std, ik_blk, rrt_std, old]).splitlines()
+    assert "standard: success (95% CI, n=4)" in lines[0] and "blocked: success" in lines[0]
+    assert len(lines) == 5  # header, rule, one line per row name
+    low, high = wilson_interval(3, 4)
+    assert lines[2].startswith(
+        f"| IK interpolation (no obstacle model) | 0.750 ({low:.3f}-{high:.3f}) | - "
+        f"| 0.000 (0.000-{wilson_interval(0, 4)[1]:.3f}) | 0.250 / 1.000 | 1 / 0 / 0 | 4 / 0 / 0 |"
+    )
+    assert "| RRT with full model | 1.000 (" in lines[3] and "| 1.0 | - |" in lines[3]
+    assert lines[3].endswith("| 0.050 / 0.050 / - |")
+    # An old row: the split from its rates (1 reached after a collision, 0 collided only).
+    assert "| no HER (2 views) | 0.500 (" in lines[4] and "| 0.625 | - |" in lines[4]
+    assert "| 0 / 1 / 1 | - |" in lines[4]
+    assert "n=21" not in "\n".join(lines)
+
+
+def test_table2_command_runs_both_families_on_test_seeds(tmp_path):
+    rows = evaluate_table(
+        EvalConfig(table=2, policy="ik", num_tasks=3, out=tmp_path / "ik", speeds=("0",))
+    )
+    assert [row.family for row in rows] == ["obstacles", "blocked"]
+    assert all(row.first_seed == TEST_SEEDS.start and row.num_tasks == 3 for row in rows)
+    assert rows[1].success_rate == 0.0 and rows[1].collision_rate == 1.0  # blind path blocked
+    data = json.loads((tmp_path / "ik.json").read_text())
+    assert [row["family"] for row in data["rows"]] == ["obstacles", "blocked"]
+    loaded = [ObstacleRow(**row) for row in data["rows"]]
+    assert (tmp_path / "ik.md").read_text() == table2_markdown(loaded) + "\n"
+    with pytest.raises(SystemExit, match="families"):
+        evaluate_table(EvalConfig(table=2, policy="ik", num_tasks=1, families=("hard",)))

@@ -1,4 +1,9 @@
-"""The paper's Table 1 (reaching static and moving targets) measured on held-out tasks.
+"""The paper's Tables 1 and 2 measured on held-out tasks (the test seed range).
+
+Every table runs on `TEST_SEEDS` (`clamgen.experiments.config`) and refuses any other seed,
+validation seeds included: those are for choices made while training.
+
+Table 1 (reaching static and moving targets).
 
 For every speed row, the policy and the IK-interpolation baseline run on the same evaluation
 tasks (same seeds, so the same start, target and target motion). Reported per row:
@@ -19,7 +24,7 @@ import numpy as np
 
 from clamgen.baselines import IKInterpolationPolicy
 from clamgen.envs import ReachEnv
-from clamgen.experiments.config import EVAL_SEED_BASE
+from clamgen.experiments.config import TEST_SEEDS, check_table_seeds
 from clamgen.experiments.evaluate import EpisodeRecord, evaluate
 from clamgen.policy import Policy
 
@@ -74,11 +79,13 @@ def table1(
     speeds=TABLE1_SPEEDS,
     env_kwargs: dict[str, Any] | None = None,
     progress=None,
+    first_seed: int = TEST_SEEDS.start,
 ) -> list[SpeedRow]:
-    """Evaluate `policy` and the IK baseline on `num_tasks` held-out tasks per speed."""
+    """Evaluate `policy` and the IK baseline on `num_tasks` held-out tasks per speed, seeds
+    `first_seed`, `first_seed` + 1, ... (test seeds only: a ValueError otherwise)."""
     env_kwargs = env_kwargs or {}
     rows = []
-    seeds = EVAL_SEED_BASE + np.arange(num_tasks)
+    seeds = check_table_seeds(first_seed, num_tasks)
     for speed in speeds:
         env = ReachEnv(num_obstacles=0, target_speed=speed, **env_kwargs)
         # The baseline needs joints and the goal, whatever the policy observes.
@@ -137,7 +144,12 @@ def write_table1(rows: list[SpeedRow], out: Path, meta: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------- Table 2
-# The paper's Table 2 (static targets, two obstacles): success rate per row.
+# Task families of Table 2: the paper's obstacle tasks and ours with the blind path blocked
+# (`clamgen.tasks.blocked`), both with two obstacles.
+TABLE2_FAMILIES = ("obstacles", "blocked")
+FAMILY_TITLES = {"obstacles": "standard obstacle tasks", "blocked": "blocked-path tasks"}
+# The paper's Table 2 (static targets, two obstacles, its own task sampling): success rate per
+# row. It stands beside our standard column; the paper has no blocked-path tasks.
 PAPER_TABLE2 = {
     "CLAMGen, 3 RGBD views": 0.81,
     "CLAMGen, 2 RGBD views": 0.76,
@@ -149,22 +161,76 @@ PAPER_TABLE2 = {
     "vanilla CURL + HER (3 views)": 0.24,
     "RRT with full model": 1.0,
 }
+# Two-sided 95% normal quantile, for the Wilson score interval.
+Z_95 = 1.959963984540054
+
+
+def wilson_interval(successes: int, num_tasks: int, z: float = Z_95) -> tuple[float, float]:
+    """The Wilson score interval (low, high) of a success rate; 95% by default.
+
+    Unlike the normal approximation it stays inside [0, 1] and is not empty at 0 or n
+    successes (Wilson 1927; Brown, Cai & DasGupta 2001 recommend it for n >= 40).
+    """
+    if num_tasks < 1 or not 0 <= successes <= num_tasks:
+        raise ValueError(f"need 0 <= successes <= num_tasks >= 1, got {successes}/{num_tasks}")
+    p = successes / num_tasks
+    denominator = 1 + z**2 / num_tasks
+    centre = (p + z**2 / (2 * num_tasks)) / denominator
+    half = z * np.sqrt(p * (1 - p) / num_tasks + z**2 / (4 * num_tasks**2)) / denominator
+    # At 0 or n successes one bound is exactly 0 or 1 (rounding would leave ~1e-18).
+    low = 0.0 if successes == 0 else float(max(0.0, centre - half))
+    high = 1.0 if successes == num_tasks else float(min(1.0, centre + half))
+    return low, high
 
 
 @dataclass
 class ObstacleRow:
+    """One Table 2 row on one task family. Rates are fractions of `num_tasks`."""
+
     name: str
     num_tasks: int
     success_rate: float
+    """Reached the target with no collision at any step."""
     collision_rate: float
+    """Some step collided."""
     reach_rate: float
+    """Reached the target, collisions aside."""
     mean_tip_path_m: float
     median_act_ms: float
     median_step_ms: float = float("nan")
     plan_time_median_s: float | None = None
     plan_time_p95_s: float | None = None
     task_success: list[bool] | None = None
-    """Success per task, in evaluation-seed order (for the blocked-task column)."""
+    """Success per task, in seed order."""
+    family: str = "obstacles"
+    """Task family: "obstacles" (`CLAMGen/ReachObstacles-v0`) or "blocked"
+    (`CLAMGen/ReachBlocked-v0`)."""
+    first_seed: int = TEST_SEEDS.start
+    """Tasks are seeds first_seed .. first_seed + num_tasks - 1."""
+
+    @property
+    def num_successes(self) -> int:
+        return round(self.success_rate * self.num_tasks)
+
+    @property
+    def success_interval(self) -> tuple[float, float]:
+        """95% Wilson score interval of the success rate."""
+        return wilson_interval(self.num_successes, self.num_tasks)
+
+    @property
+    def failure_split(self) -> dict[str, int]:
+        """Failed tasks by kind (they add up to all failures), from the three rates:
+        collided and never reached / stalled without a collision / reached after a collision
+        (an episode ends when the target is reached, so a collision came first)."""
+        n = self.num_tasks
+        reached_after_collision = round((self.reach_rate - self.success_rate) * n)
+        collided_never_reached = round(self.collision_rate * n) - reached_after_collision
+        stalled = n - self.num_successes - collided_never_reached - reached_after_collision
+        return {
+            "collided_never_reached": collided_never_reached,
+            "stalled_no_collision": stalled,
+            "reached_after_collision": reached_after_collision,
+        }
 
 
 class _PlanTimeRecorder:
@@ -184,16 +250,25 @@ class _PlanTimeRecorder:
 
 
 def table2_row(
-    name: str, policy: Policy, num_tasks: int = 200, env_kwargs: dict[str, Any] | None = None
+    name: str,
+    policy: Policy,
+    num_tasks: int = 200,
+    env_kwargs: dict[str, Any] | None = None,
+    family: str = "obstacles",
+    first_seed: int = TEST_SEEDS.start,
 ) -> ObstacleRow:
-    """One Table 2 row: `policy` on `num_tasks` held-out obstacle tasks (static targets).
+    """One Table 2 row: `policy` on `num_tasks` held-out tasks (static targets) of `family`,
+    seeds `first_seed`, `first_seed` + 1, ... (test seeds only: a ValueError otherwise).
 
     For a planner (anything with `last_plan_time_s`) the per-task planning time is reported;
     it is spent in `reset`, before the first action, and is not part of the act time.
     """
-    env = ReachEnv(num_obstacles=2, **(env_kwargs or {}))
+    if family not in TABLE2_FAMILIES:
+        raise ValueError(f"family must be one of {TABLE2_FAMILIES}, got {family!r}")
+    seeds = check_table_seeds(first_seed, num_tasks)
+    env = ReachEnv(num_obstacles=2, task_family=family, **(env_kwargs or {}))
     recorder = _PlanTimeRecorder(policy)
-    records = evaluate(env, recorder, EVAL_SEED_BASE + np.arange(num_tasks))
+    records = evaluate(env, recorder, seeds)
     env.close()
     times = np.array(recorder.times) if recorder.times else None
     return ObstacleRow(
@@ -208,56 +283,70 @@ def table2_row(
         plan_time_median_s=None if times is None else float(np.median(times)),
         plan_time_p95_s=None if times is None else float(np.percentile(times, 95)),
         task_success=[bool(r.success) for r in records],
+        family=family,
+        first_seed=int(seeds[0]),
     )
 
 
-BLOCKING_ROW = "IK interpolation (no obstacle model)"
-"""The row whose failures define the "blocked" tasks: those where moving straight to the goal
-(IK interpolation, blind to the obstacles) does not succeed, so an obstacle is in the way."""
+def _success_cell(row: ObstacleRow | None, show_n: bool) -> str:
+    if row is None:
+        return "-"
+    low, high = row.success_interval
+    n = f" n={row.num_tasks}" if show_n else ""
+    return f"{row.success_rate:.3f} ({low:.3f}-{high:.3f}){n}"
 
 
-def blocked_tasks(rows: list[ObstacleRow]) -> np.ndarray | None:
-    """Per-task mask (True = blocked) from the `BLOCKING_ROW`'s failures, or None without its
-    per-task results."""
-    for row in rows:
-        if row.name == BLOCKING_ROW and row.task_success is not None:
-            return ~np.asarray(row.task_success, bool)
-    return None
-
-
-def blocked_success(row: ObstacleRow, blocked: np.ndarray) -> float | None:
-    """`row`'s success rate on the blocked tasks; None if it has no per-task results for the
-    same tasks, or there are no blocked tasks."""
-    if row.task_success is None or len(row.task_success) != len(blocked) or not blocked.any():
-        return None
-    return float(np.asarray(row.task_success, bool)[blocked].mean())
+def _split_cell(row: ObstacleRow | None) -> str:
+    if row is None:
+        return "-"
+    return " / ".join(str(v) for v in row.failure_split.values())
 
 
 def table2_markdown(rows: list[ObstacleRow]) -> str:
-    """Markdown of Table 2 rows. When the IK-interpolation row is among them with per-task
-    results, a column gives each row's success on the tasks it failed (obstacle in the way)."""
-    blocked = blocked_tasks(rows)
-    blocked_header = "" if blocked is None else f" success on blocked tasks (n={blocked.sum()}) |"
-    lines = [
-        "| row | success | paper |" + blocked_header + " collision rate | reached | tip path (m) "
-        "| act (ms, median) | env step incl. rendering (ms) | planning (s, median / p95) |",
-        "|---|---|---|---|---|---|---|---|---|" + ("" if blocked is None else "---|"),
-    ]
+    """Markdown of Table 2: one line per row name, the standard and blocked-path families side
+    by side (success with its 95% Wilson interval, collision rate, failure split), the paper's
+    number beside the standard column; "-" where a row has no result on a family."""
+    by_name: dict[str, dict[str, ObstacleRow]] = {}
     for row in rows:
-        paper = PAPER_TABLE2.get(row.name)
-        planning = (
-            "-"
-            if row.plan_time_median_s is None
-            else f"{row.plan_time_median_s:.3f} / {row.plan_time_p95_s:.3f}"
+        by_name.setdefault(row.name, {})[row.family] = row
+    counts = {f: {r.num_tasks for r in rows if r.family == f} for f in TABLE2_FAMILIES}
+    header_n = {f: (f", n={next(iter(c))}" if len(c) == 1 else "") for f, c in counts.items()}
+    lines = [
+        f"| row | standard: success (95% CI{header_n['obstacles']}) | paper "
+        f"| blocked: success (95% CI{header_n['blocked']}) | collision rate, standard / blocked "
+        "| failures standard: collided, never reached / stalled, no collision / reached after "
+        "collision | failures blocked (same split) | act (ms, median) "
+        "| env step incl. rendering (ms) | planning (s, median / p95, standard / blocked) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, families in by_name.items():
+        standard, blocked = families.get("obstacles"), families.get("blocked")
+        paper = PAPER_TABLE2.get(name)
+        any_row = standard or blocked
+        collisions = " / ".join(
+            "-" if r is None else f"{r.collision_rate:.3f}" for r in (standard, blocked)
         )
-        blocked_cell = ""
-        if blocked is not None:
-            value = blocked_success(row, blocked)
-            blocked_cell = " - |" if value is None else f" {value:.3f} |"
+        planning = " / ".join(
+            "-"
+            if r is None or r.plan_time_median_s is None
+            else f"{r.plan_time_median_s:.3f} / {r.plan_time_p95_s:.3f}"
+            for r in (standard, blocked)
+        )
+        if planning == "- / -":
+            planning = "-"
         lines.append(
-            f"| {row.name} | {row.success_rate:.3f} | {'-' if paper is None else paper} |"
-            f"{blocked_cell} {row.collision_rate:.3f} | {row.reach_rate:.3f} "
-            f"| {row.mean_tip_path_m:.3f} | {row.median_act_ms:.4f} "
-            f"| {row.median_step_ms:.3f} | {planning} |"
+            f"| {name} | {_success_cell(standard, not header_n['obstacles'])} "
+            f"| {'-' if paper is None else paper} "
+            f"| {_success_cell(blocked, not header_n['blocked'])} | {collisions} "
+            f"| {_split_cell(standard)} | {_split_cell(blocked)} "
+            f"| {any_row.median_act_ms:.4f} | {any_row.median_step_ms:.3f} | {planning} |"
         )
     return "\n".join(lines)
+
+
+def write_table2(rows: list[ObstacleRow], out: Path, meta: dict[str, Any]) -> None:
+    """`out`.json (rows + how they were made) and `out`.md."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    data = {**meta, "rows": [row.__dict__ for row in rows]}
+    out.with_suffix(".json").write_text(json.dumps(data, indent=2))
+    out.with_suffix(".md").write_text(table2_markdown(rows) + "\n")
