@@ -432,6 +432,28 @@ def _report_config(argv: list[str]):
     return tyro.cli(ReportConfig, args=argv, prog="clamgen report")
 
 
+def sweep(config) -> dict:
+    """Run a grid of training runs and their evaluations on Ray; resumable, with a summary."""
+    from clamgen.experiments.sweep import SpecError, run_sweep
+
+    try:
+        return run_sweep(config)
+    except SpecError as error:
+        raise SystemExit(str(error)) from error
+
+
+def _sweep_config(argv: list[str]):
+    from clamgen.experiments import sweep as sweep_module
+
+    spec_format = (sweep_module.__doc__ or "").split("The spec (TOML", 1)[-1]
+    return tyro.cli(
+        sweep_module.SweepConfig,
+        args=argv,
+        prog="clamgen sweep",
+        description=f"{sweep.__doc__} Spec format (TOML{spec_format}",
+    )
+
+
 # Subcommand name -> (config builder from argv, handler). Each handler takes its config.
 COMMANDS: dict[str, tuple[Callable, Callable]] = {
     "demo": (lambda argv: tyro.cli(DemoConfig, args=argv, prog="clamgen demo"), demo),
@@ -451,6 +473,7 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
     ),
     "render": (_render_config, render),
     "report": (_report_config, report),
+    "sweep": (_sweep_config, sweep),
     "export-scene": (
         lambda argv: tyro.cli(ExportSceneConfig, args=argv, prog="clamgen export-scene"),
         export_scene,
