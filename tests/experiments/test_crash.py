@@ -251,6 +251,7 @@ def test_stage1_survives_20_kills_at_random_instants(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)
 def test_stage1_survives_200_kills_at_random_instants(tmp_path):
     campaign = crash_and_compare(
         tmp_path, STAGE1, stage1_config, 2000, num_kills=200, max_delay_s=0.4
@@ -259,6 +260,7 @@ def test_stage1_survives_200_kills_at_random_instants(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 @pytest.mark.parametrize("background", [False, True], ids=["synchronous", "background"])
 def test_stage2_survives_20_kills_at_random_instants(tmp_path, background):
     crash_and_compare(
