@@ -13,6 +13,7 @@ from point_goal_env import PointGoalEnv
 
 from clamgen.agents.sac import NonFiniteLossError, SACAgent, SACConfig, flatten_obs
 from clamgen.replay.buffer import ReplayBuffer, ReplayConfig, obs_spec_from_space
+from clamgen.replay.pipeline import EpisodePipeline, HindsightConfig
 from clamgen.replay.episode import Batch, EpisodeRecorder
 
 torch.set_num_threads(1)
@@ -53,6 +54,7 @@ def train(config: SACConfig, num_steps: int, seed: int) -> SACAgent:
         action_dim=2,
         compute_reward=env.compute_reward,
     )
+    pipeline = EpisodePipeline(buffer, HindsightConfig(), env.compute_reward)
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
     recorder = EpisodeRecorder(obs)
@@ -61,11 +63,11 @@ def train(config: SACConfig, num_steps: int, seed: int) -> SACAgent:
         obs, _, terminated, truncated, info = env.step(action)
         recorder.add(action, obs, info)
         if terminated or truncated:
-            buffer.add_episode(recorder.episode())
+            pipeline.store(recorder.episode())
             obs, _ = env.reset()
             recorder = EpisodeRecorder(obs)
         if len(buffer) >= config.batch_size:
-            agent.update(buffer.sample(config.batch_size, rng))
+            agent.update(pipeline.sample(config.batch_size, rng))
     return agent
 
 

@@ -1,4 +1,5 @@
-"""Replay buffer: next-observation index arithmetic, wrap-around, HER at sample time, memory."""
+"""Replay buffer: next-observation index arithmetic, wrap-around, memory; HER at sample time and
+reversible HER on insert through the episode pipeline."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from clamgen.replay.buffer import (
     obs_spec_from_space,
 )
 from clamgen.replay.episode import Episode
+from clamgen.replay.pipeline import EpisodePipeline, HindsightConfig
 
 STEP_REWARD = -0.01
 OBS_SPEC = {
@@ -59,6 +61,13 @@ def make_buffer(capacity: int, **overrides) -> ReplayBuffer:
     return ReplayBuffer(config, OBS_SPEC, action_dim=2, compute_reward=exact_reward)
 
 
+def make_pipeline(capacity: int, **hindsight) -> EpisodePipeline:
+    """A buffer behind the pipeline that relabels (no reversible HER unless asked)."""
+    hindsight.setdefault("reversible", False)
+    buffer = make_buffer(capacity)
+    return EpisodePipeline(buffer, HindsightConfig(**hindsight), exact_reward)
+
+
 def check_batch(batch, lengths: dict[int, int]) -> None:
     """Every sampled transition is consistent with the labelled episodes still stored."""
     episode_id = batch["obs"]["observation"][:, 0].astype(int)
@@ -82,13 +91,14 @@ def check_batch(batch, lengths: dict[int, int]) -> None:
 
 
 def test_next_obs_and_her_goals_stay_inside_episodes_across_wraparound() -> None:
-    buffer = make_buffer(capacity=23, her_ratio=0.5)
+    pipeline = make_pipeline(capacity=23, her_ratio=0.5)
+    buffer = pipeline.buffer
     rng = np.random.default_rng(0)
     lengths: dict[int, int] = {}
     for episode_id, num_steps in enumerate([3, 5, 1, 6, 4, 2, 7, 3, 5, 6, 1, 4]):
-        buffer.add_episode(labelled_episode(episode_id, num_steps))
+        pipeline.store(labelled_episode(episode_id, num_steps))
         lengths[episode_id] = num_steps
-        batch = buffer.sample(400, rng)
+        batch = pipeline.sample(400, rng)
         stored = set(batch["obs"]["observation"][:, 0].astype(int))
         assert episode_id in stored  # the newest episode is always kept
         check_batch(batch, lengths)
@@ -115,6 +125,15 @@ def test_sampling_is_uniform_over_transitions() -> None:
     assert abs(share - 0.1) < 0.01
 
 
+def test_the_buffer_alone_never_relabels() -> None:
+    config = ReplayConfig(capacity=50, her_ratio=1.0, reversible_her=True)
+    buffer = ReplayBuffer(config, OBS_SPEC, action_dim=2, compute_reward=exact_reward)
+    assert buffer.add_episode(labelled_episode(0, 4, collide_at=2)) == 1
+    assert buffer.num_episodes == 1
+    batch = buffer.sample(100, np.random.default_rng(0))
+    np.testing.assert_array_equal(batch["obs"]["desired_goal"][:, 1], -1.0)
+
+
 def test_without_her_goals_and_rewards_are_recorded_ones() -> None:
     buffer = make_buffer(capacity=50, her_ratio=0.0)
     buffer.add_episode(labelled_episode(0, 4, collide_at=2))
@@ -126,21 +145,21 @@ def test_without_her_goals_and_rewards_are_recorded_ones() -> None:
 
 
 def test_final_strategy_relabels_to_episode_end() -> None:
-    buffer = make_buffer(capacity=50, her_ratio=1.0, her_strategy="final")
-    buffer.add_episode(labelled_episode(0, 4))
-    batch = buffer.sample(100, np.random.default_rng(0))
+    pipeline = make_pipeline(capacity=50, her_ratio=1.0, her_strategy="final")
+    pipeline.store(labelled_episode(0, 4))
+    batch = pipeline.sample(100, np.random.default_rng(0))
     np.testing.assert_array_equal(batch["obs"]["desired_goal"][:, 1], 4.0)
     last_step = batch["obs"]["observation"][:, 1] == 3
     np.testing.assert_array_equal(batch["done"], last_step)
 
 
 def test_reversible_her_episodes_are_added_on_insert() -> None:
-    config = ReplayConfig(capacity=100, reversible_her=True)
-    buffer = ReplayBuffer(config, OBS_SPEC, action_dim=2, compute_reward=exact_reward)
-    assert buffer.add_episode(labelled_episode(0, 6, collide_at=4)) == 3
+    pipeline = make_pipeline(capacity=100, reversible=True, her_ratio=0.0)
+    buffer = pipeline.buffer
+    assert pipeline.store(labelled_episode(0, 6, collide_at=4)) == 3
     # original 6 steps + forward 4 + reversed 4
     assert buffer.num_episodes == 3 and len(buffer) == 14
-    batch = buffer.sample(2000, np.random.default_rng(0))
+    batch = pipeline.sample(2000, np.random.default_rng(0))
     step = batch["obs"]["observation"][:, 1]
     next_step = batch["next_obs"]["observation"][:, 1]
     backwards = next_step == step - 1

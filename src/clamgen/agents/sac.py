@@ -311,6 +311,11 @@ class SACAgent:
             "numpy_rng": self._rng.bit_generator.state,
         }
 
+    def policy_state_keys(self) -> tuple[str, ...]:
+        """Keys of `state_dict()` a policy file keeps: acting needs the actor and normaliser,
+        stage 2 the critic as the frozen base Q-function."""
+        return ("config", "actor", "critic", "normalizer", "log_alpha")
+
     def load_policy_state(self, state: Mapping[str, Any]) -> None:
         """Restore the acting part only (actor, critic as its own target, normaliser,
         temperature), as kept by a policy file; optimisers and RNG states keep their values."""

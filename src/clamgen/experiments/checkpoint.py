@@ -34,11 +34,27 @@ import threading
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
 import torch
+
+# Policies shipped inside the package (clamgen/checkpoints/), by name.
+SHIPPED_POLICIES = {
+    "base": "base.pt",
+    "residual-2views": "residual-2views.pt",
+    "image-only": "image-only.pt",
+}
+
+
+def resolve_policy_path(name: str | Path) -> Path:
+    """A shipped policy's file, or `name` as a path."""
+    if name in SHIPPED_POLICIES:
+        return Path(str(files("clamgen") / "checkpoints" / SHIPPED_POLICIES[name]))
+    return Path(name)
+
 
 FORMAT = "clamgen"
 TRAINING_KIND = "training-state"

@@ -2,28 +2,25 @@
 
 from __future__ import annotations
 
-from importlib.resources import files
 from pathlib import Path
 from typing import Literal
 
+from clamgen.experiments.checkpoint import SHIPPED_POLICIES, resolve_policy_path
 from clamgen.policy import Policy
 
-# Policies shipped inside the package (clamgen/checkpoints/).
-SHIPPED_POLICIES = {
-    "base": "base.pt",
-    "residual-2views": "residual-2views.pt",
-    "image-only": "image-only.pt",
-}
 BASELINES = ("ik", "rrt")
 # The names above, as a type: command-line options typed `PolicyName | Path` list them.
 PolicyName = Literal["base", "residual-2views", "image-only", "ik", "rrt"]
 
-
-def resolve_policy_path(name: str | Path) -> Path:
-    """A shipped policy's file, or `name` as a path."""
-    if name in SHIPPED_POLICIES:
-        return Path(str(files("clamgen") / "checkpoints" / SHIPPED_POLICIES[name]))
-    return Path(name)
+__all__ = [
+    "BASELINES",
+    "SHIPPED_POLICIES",
+    "PolicyName",
+    "load_policy",
+    "policy_label",
+    "policy_observation",
+    "resolve_policy_path",
+]
 
 
 def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
@@ -49,14 +46,15 @@ def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
 
     path = resolve_policy_path(name)
     source = f"{name} ({SHIPPED_POLICIES[name]})" if name in SHIPPED_POLICIES else str(path)
-    if ckpt.load_torch(path, kind=None).get("kind") == "residual-policy":
+    payload = ckpt.load_torch(path, kind=None)  # read once, whichever stage wrote it
+    if payload.get("kind") == "residual-policy":
         from clamgen.experiments.stage2 import load_residual_agent
 
-        agent, config = load_residual_agent(path)
+        agent, config = load_residual_agent(path, payload)
         kwargs = config.env.make_kwargs()
         kwargs.pop("target_speed")
         return SACPolicy(agent), source, kwargs
-    agent, _ = load_policy_agent(path)
+    agent, _ = load_policy_agent(path, payload)
     return SACPolicy(agent), source, {}
 
 

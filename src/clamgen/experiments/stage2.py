@@ -29,9 +29,8 @@ from clamgen.agents.sac import SACAgent, SACConfig
 from clamgen.envs import ENV_IDS
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import EnvConfig, LoopConfig, config_from_json, from_dict
-from clamgen.experiments.train import Trainer, load_policy_agent, make_env
+from clamgen.experiments.train import Stage, Trainer, hindsight_of, load_policy_agent, make_env
 from clamgen.replay import ReplayConfig
-from clamgen.replay.her import reversible_her
 from clamgen.schedules import LinearRamp
 
 RESIDUAL_POLICY_KIND = "residual-policy"
@@ -125,124 +124,95 @@ class Stage2Config:
             raise ValueError("agent.obs_source='obstacles' needs env.include_obstacle_state=True")
 
 
-class Stage2Trainer(Trainer):
-    """The stage-1 loop with a residual agent and re-rendered hindsight episodes."""
+def residual_stage(config: Stage2Config) -> Stage:
+    """What stage 2 plugs into the shared training loop: the residual agent on the base policy
+    file's actor and critic; reversible HER once per failed episode, re-rendered in a worker
+    process for image observations; the base's config in the policy file; optional encoder
+    pretraining on a fresh start."""
+    images = config.agent.obs_source == "images"
 
-    policy_kind = RESIDUAL_POLICY_KIND
-
-    @property
-    def policy_state_keys(self) -> tuple[str, ...]:
-        """The agent's own list: its acting networks and inference-time heads."""
-        return self.agent.policy_state_keys()
-
-    def __init__(self, config: Stage2Config) -> None:
-        self._worker = None
-        super().__init__(config)
-        if config.image_her and config.agent.obs_source == "images":
-            from clamgen.replay.rerender import RerenderWorker
-
-            self._worker = RerenderWorker(
-                num_views=config.env.num_views,
-                image_size=config.env.image_size,
-                synchronous=config.rerender_in_process,
-            )
-
-    def _start_or_resume(self) -> bool:
-        resumed = super()._start_or_resume()
-        if not resumed and self.config.pretrain.scenes > 0:
-            self.pretrain_encoder()
-        return resumed
-
-    def pretrain_encoder(self) -> dict[str, float]:
-        """Render random scenes, pretrain the encoder on them, and write `pretrain.json` (goal
-        and joint errors on held-out scenes, before and after) into the run directory."""
-        cfg = self.config.pretrain
-        env = make_env(self.config.env)
-        try:
-            scenes = _render_scenes(env, cfg.seed, cfg.scenes, "pretrain: rendering")
-            held_out = _render_scenes(env, cfg.seed + cfg.scenes, cfg.held_out_scenes, None)
-        finally:
-            env.close()
-        before = _state_errors(self.agent, held_out)
-        start = time.perf_counter()
-        with tqdm(total=cfg.steps, desc="pretrain: encoder", unit="step") as bar:
-
-            def on_step(loss: float) -> None:
-                bar.update()
-                bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
-
-            loss = self.agent.pretrain_encoder(scenes, cfg.steps, cfg.batch_size, cfg.lr, on_step)
-        summary = {
-            "scenes": cfg.scenes,
-            "steps": cfg.steps,
-            "seconds": round(time.perf_counter() - start, 1),
-            "final_loss": loss,
-            **{f"before/{k}": v for k, v in before.items()},
-            **{f"after/{k}": v for k, v in _state_errors(self.agent, held_out).items()},
-        }
-        (self.run_dir / "pretrain.json").write_text(json.dumps(summary, indent=2) + "\n")
-        print("pretrain:", json.dumps(summary))
-        return summary
-
-    def make_agent(self, probe: gym.Env) -> ResidualAgent:
-        from clamgen.experiments.policies import resolve_policy_path
-
-        base, _ = load_policy_agent(resolve_policy_path(self.config.base_policy))
-        agent_config = dataclasses.replace(self.config.agent, seed=self.config.loop.seed)
-        num_obstacles = (
-            probe.unwrapped.num_obstacles if hasattr(probe.unwrapped, "num_obstacles") else 2
-        )
+    def make_agent(probe: gym.Env) -> ResidualAgent:
+        base, _ = load_policy_agent(ckpt.resolve_policy_path(config.base_policy))
+        agent_config = dataclasses.replace(config.agent, seed=config.loop.seed)
+        num_obstacles = getattr(probe.unwrapped, "num_obstacles", 2)
         return ResidualAgent(agent_config, base, num_obstacles=num_obstacles)
 
-    def store_episode(self, episode, env: gym.Env) -> None:
-        self.buffer.add_episode(episode)
-        if self._worker is None:
-            if self.config.image_her:  # poses, not images: relabelled episodes need no render
-                for extra in reversible_her(episode, env.unwrapped.compute_reward):
-                    self.buffer.add_episode(extra)
-            return
-        obstacles = env.unwrapped.scene.obstacles
-        for extra in reversible_her(episode, env.unwrapped.compute_reward):
-            self._worker.submit(extra, obstacles)
+    def make_rerender():
+        from clamgen.replay.rerender import RerenderWorker
 
-    def _update(self):
-        if self._worker is not None:
-            for _, episode in self._worker.poll():
-                self.buffer.add_episode(episode)
-        return super()._update()
+        return RerenderWorker(
+            num_views=config.env.num_views,
+            image_size=config.env.image_size,
+            synchronous=config.rerender_in_process,
+        )
 
-    def _rollout_metrics(self) -> dict[str, float]:
-        metrics = super()._rollout_metrics()
-        if self._worker is not None:
-            metrics |= {key: float(value) for key, value in self._worker.stats.items()}
-        return metrics
-
-    def save_checkpoint(self) -> None:
-        # Relabelled episodes still being rendered would be lost: wait for them first.
-        if self._worker is not None:
-            for _, episode in self._worker.drain(timeout=600):
-                self.buffer.add_episode(episode)
-        super().save_checkpoint()
-
-    def policy_payload(self) -> dict:
+    def policy_extras(agent: ResidualAgent) -> dict:
         # The base's own config and sizes, so the file loads without the base policy file.
-        return super().policy_payload() | {
-            "base_config": dataclasses.asdict(self.agent.base.config),
-            "action_dim": self.agent.action_dim,
-        }
+        base_config = dataclasses.asdict(agent.base.config)
+        return {"base_config": base_config, "action_dim": agent.action_dim}
 
-    def run(self, show_progress: bool = True):
-        try:
-            return super().run(show_progress)
-        finally:
-            if self._worker is not None:
-                self._worker.close()
+    # One relabelling, whichever flag asks for it: with images, image_her (re-rendered); with
+    # obstacle poses, image_her or replay.reversible_her (nothing to re-render).
+    reversible = config.image_her or config.replay.reversible_her
+    return Stage(
+        make_agent=make_agent,
+        hindsight=hindsight_of(config.replay, reversible=reversible),
+        make_rerender=make_rerender if images and config.image_her else None,
+        policy_kind=RESIDUAL_POLICY_KIND,
+        policy_extras=policy_extras,
+        before_start=pretrain_encoder if config.pretrain.scenes > 0 else None,
+    )
 
 
-def load_residual_agent(path: Path) -> tuple[ResidualAgent, Stage2Config]:
+class Stage2Trainer(Trainer):
+    """The shared training loop with the residual stage plugged in (nothing overridden)."""
+
+    def __init__(self, config: Stage2Config) -> None:
+        super().__init__(config, residual_stage(config))
+
+
+def pretrain_encoder(trainer: Trainer) -> dict[str, float]:
+    """Render random scenes, pretrain the trainer's agent's encoder on them, and write
+    `pretrain.json` (goal and joint errors on held-out scenes, before and after) into the run
+    directory."""
+    config, agent = trainer.config, trainer.agent
+    cfg = config.pretrain
+    env = make_env(config.env)
+    try:
+        scenes = _render_scenes(env, cfg.seed, cfg.scenes, "pretrain: rendering")
+        held_out = _render_scenes(env, cfg.seed + cfg.scenes, cfg.held_out_scenes, None)
+    finally:
+        env.close()
+    before = _state_errors(agent, held_out)
+    start = time.perf_counter()
+    with tqdm(total=cfg.steps, desc="pretrain: encoder", unit="step") as bar:
+
+        def on_step(loss: float) -> None:
+            bar.update()
+            bar.set_postfix(loss=f"{loss:.3f}", refresh=False)
+
+        loss = agent.pretrain_encoder(scenes, cfg.steps, cfg.batch_size, cfg.lr, on_step)
+    summary = {
+        "scenes": cfg.scenes,
+        "steps": cfg.steps,
+        "seconds": round(time.perf_counter() - start, 1),
+        "final_loss": loss,
+        **{f"before/{k}": v for k, v in before.items()},
+        **{f"after/{k}": v for k, v in _state_errors(agent, held_out).items()},
+    }
+    (trainer.run_dir / "pretrain.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print("pretrain:", json.dumps(summary))
+    return summary
+
+
+def load_residual_agent(
+    path: Path, payload: dict | None = None
+) -> tuple[ResidualAgent, Stage2Config]:
     """The agent of a residual policy file and the config that trained it (the file carries the
-    base's weights too, so the base policy file is not needed)."""
-    payload = ckpt.load_torch(Path(path), RESIDUAL_POLICY_KIND)
+    base's weights too, so the base policy file is not needed). `payload`: the file's contents
+    when already read."""
+    if payload is None or payload.get("kind") != RESIDUAL_POLICY_KIND:
+        payload = ckpt.load_torch(Path(path), RESIDUAL_POLICY_KIND)
     config: Stage2Config = config_from_json(payload["config"], Stage2Config)
     state = dict(payload["agent"])
     base_config = from_dict(SACConfig, payload["base_config"])

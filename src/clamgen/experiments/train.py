@@ -18,6 +18,7 @@ import signal
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -46,15 +47,13 @@ from clamgen.replay import (
     nbytes_required,
     obs_spec_from_space,
 )
-from clamgen.replay.buffer import BLOCK_BYTES
+from clamgen.replay.buffer import BLOCK_BYTES, ReplayConfig
+from clamgen.replay.pipeline import EpisodePipeline, HindsightConfig
 from clamgen.sim.scene import Obstacles
 from clamgen.sim.state import SimState
 from clamgen.tasks.reach import Task
 
 POLICY_NAME = "policy.pt"
-# What a policy file keeps of the agent's state: acting needs the actor and normaliser, stage 2
-# the critic as the frozen base Q-function.
-POLICY_STATE_KEYS = ("config", "actor", "critic", "normalizer", "log_alpha")
 # Successes of the last this many training episodes feed the progress bar's rate.
 RECENT_EPISODES = 100
 
@@ -138,11 +137,56 @@ class Progress:
     """The latest evaluation summary, so that a resume at the end does not evaluate again."""
 
 
-class Trainer:
-    """Holds envs, agent, buffer and counters; `run()` trains until the budget is spent."""
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    """What a training stage plugs into the shared loop (`Trainer`); stage 1 and stage 2
+    differ only in this.
 
-    def __init__(self, config: TrainConfig) -> None:
+    The agent is anything with `act(obs, deterministic=False) -> actions`, `update(batch) ->
+    metrics`, `state_dict()`, `load_state_dict(state)`, `policy_state_keys()` and
+    `config.batch_size`.
+    """
+
+    make_agent: Callable[[gym.Env], Any]
+    """The agent, sized by a probe env (seeded by the loop seed)."""
+    hindsight: HindsightConfig
+    """The relabelling the episode pipeline applies."""
+    make_rerender: Callable[[], Any] | None = None
+    """A re-rendering worker for relabelled image episodes (None: store them as they are)."""
+    policy_kind: str = ckpt.POLICY_KIND
+    """The `kind` written into exported policy files."""
+    policy_extras: Callable[[Any], dict[str, Any]] | None = None
+    """More entries for the policy file, from the agent."""
+    before_start: Callable[[Trainer], None] | None = None
+    """Run once on a fresh start, before the first step (not on a resume)."""
+
+
+def joint_stage(config: TrainConfig) -> Stage:
+    """Stage 1: SAC on joints and goal, HER at sample time and reversible HER at insert time."""
+
+    def make_agent(probe: gym.Env) -> SACAgent:
+        agent_config = dataclasses.replace(config.agent, seed=config.loop.seed)
+        return SACAgent.from_spaces(agent_config, probe.observation_space, probe.action_space)
+
+    return Stage(make_agent=make_agent, hindsight=hindsight_of(config.replay))
+
+
+def hindsight_of(replay: ReplayConfig, reversible: bool | None = None) -> HindsightConfig:
+    """The pipeline's relabelling from a replay config (`reversible` overrides its flag)."""
+    return HindsightConfig(
+        reversible=replay.reversible_her if reversible is None else reversible,
+        her_ratio=replay.her_ratio,
+        her_strategy=replay.her_strategy,
+    )
+
+
+class Trainer:
+    """Holds envs, agent, episode pipeline and counters; `run()` trains until the budget is
+    spent. What differs between stages comes in as a `Stage` (default: stage 1)."""
+
+    def __init__(self, config: TrainConfig, stage: Stage | None = None) -> None:
         self.config = config
+        self.stage = stage or joint_stage(config)
         loop = config.loop
         torch.set_num_threads(loop.torch_threads)
         self.run_dir = Path(config.run_dir)
@@ -152,13 +196,17 @@ class Trainer:
         self.eval_env = make_env(config.env)
         probe = self.envs[0]
         # The loop seed seeds everything, the agent included.
-        self.agent = self.make_agent(probe)
+        self.agent = self.stage.make_agent(probe)
         self.memory_need_bytes = self._check_memory(probe)
         self.buffer = ReplayBuffer(
             config.replay,
             obs_spec_from_space(probe.observation_space),
             int(np.prod(probe.action_space.shape)),
             probe.unwrapped.compute_reward,
+        )
+        rerender = self.stage.make_rerender() if self.stage.make_rerender else None
+        self.pipeline = EpisodePipeline(
+            self.buffer, self.stage.hindsight, probe.unwrapped.compute_reward, rerender=rerender
         )
         self.rng = np.random.default_rng(loop.seed)
         self.progress = Progress()
@@ -199,17 +247,6 @@ class Trainer:
             )
         return need
 
-    def make_agent(self, probe: gym.Env):
-        """The agent to train (stage 2 overrides this)."""
-        agent_config = dataclasses.replace(self.config.agent, seed=self.config.loop.seed)
-        return SACAgent.from_spaces(agent_config, probe.observation_space, probe.action_space)
-
-    def store_episode(self, episode, env: gym.Env) -> None:
-        """Put a finished episode of `env` (before its reset) into the replay buffer; stage 2
-        adds re-rendered hindsight episodes."""
-        del env
-        self.buffer.add_episode(episode)
-
     # ------------------------------------------------------------------------ run
     def start_or_resume(self) -> bool:
         """Resume from the run directory's checkpoint if there is one; True if resumed.
@@ -218,6 +255,8 @@ class Trainer:
         if self._resumed is not None:
             return self._resumed
         self._resumed = self._start_or_resume()
+        if not self._resumed and self.stage.before_start is not None:
+            self.stage.before_start(self)
         return self._resumed
 
     def _start_or_resume(self) -> bool:
@@ -235,7 +274,14 @@ class Trainer:
         return False
 
     def run(self, show_progress: bool = True) -> dict[str, float]:
-        """Train to `loop.total_env_steps`; returns the last evaluation's summary."""
+        """Train to `loop.total_env_steps`; returns the last evaluation's summary. The
+        re-rendering worker, if any, is stopped at the end however the run ends."""
+        try:
+            return self._run(show_progress)
+        finally:
+            self.pipeline.close()
+
+    def _run(self, show_progress: bool) -> dict[str, float]:
         loop = self.config.loop
         resumed = self.start_or_resume()
         logger = MetricLogger(self.run_dir, self.resumed_from_step)
@@ -331,7 +377,7 @@ class Trainer:
             self.recorders[i].add(actions[i], obs, info)
             if terminated or truncated:
                 episode = self.recorders[i].episode()
-                self.store_episode(episode, env)
+                self.pipeline.store(episode, _obstacles(env))
                 self.recent_successes.append(not episode.failed)
                 self.progress.episodes += 1
                 obs, _ = env.reset()
@@ -349,12 +395,13 @@ class Trainer:
 
     def _update(self) -> dict[str, float] | None:
         loop = self.config.loop
+        self.pipeline.collect()  # re-rendered episodes that came back
         if self.progress.env_steps < loop.learning_starts or len(self.buffer) == 0:
             return None
         self.progress.updates_owed += len(self.envs) * loop.updates_per_step
         metrics = None
         while self.progress.updates_owed >= 1.0:
-            batch = self.buffer.sample(self.agent.config.batch_size, self.rng)
+            batch = self.pipeline.sample(self.agent.config.batch_size, self.rng)
             metrics = self.agent.update(batch)
             self.progress.updates += 1
             self.progress.updates_owed -= 1.0
@@ -370,7 +417,7 @@ class Trainer:
         }
         if self.recent_successes:
             metrics["rollout/success_rate"] = float(np.mean(self.recent_successes))
-        return metrics
+        return metrics | self.pipeline.metrics()
 
     def evaluate(self) -> dict[str, float]:
         """Deterministic policy on the first `num_eval_episodes` validation seeds (never the
@@ -389,6 +436,8 @@ class Trainer:
     def save_checkpoint(self) -> None:
         """Write and publish the resumable state (`checkpoint.CheckpointStore.save`; a large
         replay is written in the background, `self.checkpoints.wait()` waits for it)."""
+        # Relabelled episodes still being re-rendered would be lost: store them first.
+        self.pipeline.flush()
         stamp = self.progress.env_steps
         arrays: dict[str, np.ndarray] = {}
         for i, env in enumerate(self.envs):
@@ -432,19 +481,18 @@ class Trainer:
         (self.run_dir / "config.json").write_text(config_to_json(self.config))
         self._apply_curriculum()
 
-    policy_kind = ckpt.POLICY_KIND
-    policy_state_keys = POLICY_STATE_KEYS
-
     def policy_payload(self) -> dict[str, Any]:
-        """What a policy file holds: acting (and stage 2) needs, no optimiser or replay state.
-        Stage 2 adds to it."""
+        """What a policy file holds: what acting (and stage 2) needs, no optimiser or replay
+        state; the stage's extras."""
         state = self.agent.state_dict()
+        extras = self.stage.policy_extras(self.agent) if self.stage.policy_extras else {}
         return {
             "format": ckpt.FORMAT,
-            "kind": self.policy_kind,
+            "kind": self.stage.policy_kind,
             "config": config_to_json(self.config),
             "env_steps": self.progress.env_steps,
-            "agent": {k: state[k] for k in self.policy_state_keys},
+            "agent": {k: state[k] for k in self.agent.policy_state_keys()},
+            **extras,
         }
 
     def export_policy(self, path: Path) -> None:
@@ -452,19 +500,32 @@ class Trainer:
         ckpt.save_torch(path, self.policy_payload())
 
 
-def load_policy_agent(path: Path) -> tuple[SACAgent, TrainConfig]:
-    """The SAC agent of a policy file (`export_policy`) and the config that trained it."""
-    payload = ckpt.load_torch(Path(path), ckpt.POLICY_KIND)
+def load_policy_agent(path: Path, payload: dict | None = None) -> tuple[SACAgent, TrainConfig]:
+    """The SAC agent of a policy file (`export_policy`) and the config that trained it.
+    `payload`: the file's contents when already read."""
+    if payload is None or payload.get("kind") != ckpt.POLICY_KIND:
+        payload = ckpt.load_torch(Path(path), ckpt.POLICY_KIND)
     config = config_from_json(payload["config"])
-    agent_config = from_dict(SACConfig, payload["agent"]["config"])
-    env = make_env(dataclasses.replace(config.env, num_views=0, obs_mode="joints"))
-    agent = SACAgent.from_spaces(agent_config, env.observation_space, env.action_space)
-    env.close()
+    state = payload["agent"]
+    agent_config = from_dict(SACConfig, state["config"])
     try:
-        agent.load_policy_state(payload["agent"])
+        # Sized by the actor's weights: its first layer reads the observation, its last gives
+        # a mean and a log std per action dimension.
+        obs_dim = int(state["actor"]["trunk.0.weight"].shape[1])
+        layers = [k for k in state["actor"] if k.startswith("trunk.") and k.endswith(".weight")]
+        last = max(layers, key=lambda key: int(key.split(".")[1]))
+        action_dim = int(state["actor"][last].shape[0]) // 2
+        agent = SACAgent(agent_config, obs_dim=obs_dim, action_dim=action_dim)
+        agent.load_policy_state(state)
     except (RuntimeError, KeyError) as error:
         raise ckpt.CheckpointError(f"{path} does not match its own config: {error}") from error
     return agent, config
+
+
+def _obstacles(env: gym.Env) -> Any:
+    """The obstacles of `env`'s current task (what re-rendering needs), or None."""
+    task = getattr(env.unwrapped, "task", None)
+    return getattr(task, "obstacles", None)
 
 
 def _install_interrupt_handler(trainer: Trainer):

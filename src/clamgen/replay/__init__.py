@@ -15,12 +15,16 @@ from clamgen.replay.her import (
     reversible_her,
     sample_goal_indices,
     transitions,
+    with_goals,
 )
+from clamgen.replay.pipeline import EpisodePipeline, HindsightConfig
 
 __all__ = [
     "Batch",
     "Episode",
+    "EpisodePipeline",
     "EpisodeRecorder",
+    "HindsightConfig",
     "ReplayBuffer",
     "ReplayConfig",
     "available_memory_bytes",
@@ -33,4 +37,5 @@ __all__ = [
     "sample_goal_indices",
     "sparse_terminated",
     "transitions",
+    "with_goals",
 ]

@@ -1,11 +1,12 @@
-"""Episode replay buffer with hindsight relabelling at sample time.
+"""Episode replay buffer: stores whole episodes and samples transitions.
 
 Stores whole episodes in preallocated numpy arrays, one array per observation key (so image keys
 can be uint8), each observation once: an episode of T steps occupies T + 1 consecutive slots and
-``next_obs`` of slot ``i`` is slot ``i + 1``. Goals are relabelled with HER when a batch is
-sampled, and the paper's reversible HER (section "Reversed Vision-Based Hindsight Experience
-Replay") adds its forward and time-reversed episodes when an episode is inserted. The buffer
-never holds an env: rewards come from the ``compute_reward`` callable it is given.
+``next_obs`` of slot ``i`` is slot ``i + 1``. The buffer only stores and samples: hindsight
+relabelling (standard HER at sample time, the paper's reversible HER when an episode is stored)
+is done once, by :class:`clamgen.replay.pipeline.EpisodePipeline`, which reads the slots, episode
+bounds and achieved goals it needs from here. The buffer never holds an env: rewards come from
+the ``compute_reward`` callable it is given.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from clamgen.replay.episode import (
     TerminatedFn,
     sparse_terminated,
 )
-from clamgen.replay.her import HerStrategy, reversible_her, reward_and_done, sample_goal_indices
+from clamgen.replay.her import HerStrategy, reward_and_done
 
 ObsSpec = Mapping[str, tuple[tuple[int, ...], np.dtype]]
 """Shape (without the batch dim) and dtype of each stored observation key."""
@@ -53,7 +54,8 @@ class ReplayConfig:
     her_ratio: float = 0.8
     """Probability that a sampled transition gets a relabelled goal (k = 4 in HER terms)."""
     reversible_her: bool = True
-    """Add the paper's reversible-HER forward and reversed episodes of every failed episode."""
+    """Add the paper's reversible-HER forward and reversed episodes of every failed episode
+    (applied by the episode pipeline when the episode is stored)."""
     max_memory_fraction: float = 0.8
     """Refuse a capacity whose arrays need more than this fraction of the available memory."""
 
@@ -178,20 +180,10 @@ class ReplayBuffer:
         return sum(a.nbytes for a in arrays) + self._starts_transition.nbytes
 
     def add_episode(self, episode: Episode) -> int:
-        """Store an episode, plus its reversible-HER episodes when enabled.
-
-        The reversible-HER episodes are stored as episodes of their own: their observations
-        carry a new ``desired_goal`` (and, for image keys, must show the target there).
-
-        Returns:
-            Number of episodes stored (1, or 3 for a failed episode with reversible HER).
-        """
-        extra = ()
-        if self.config.reversible_her:
-            extra = reversible_her(episode, self.compute_reward, self.compute_terminated)
-        for stored in (episode, *extra):
-            self._write(stored)
-        return 1 + len(extra)
+        """Store one episode as it is (relabelling is the pipeline's job,
+        :class:`clamgen.replay.pipeline.EpisodePipeline`). Returns 1."""
+        self._write(episode)
+        return 1
 
     def _write(self, episode: Episode) -> None:
         num_slots = episode.num_steps + 1
@@ -329,28 +321,20 @@ class ReplayBuffer:
             )
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
-        """Sample transitions uniformly, relabelling goals with probability ``her_ratio``.
+        """Transitions drawn uniformly, with their recorded goals (no relabelling)."""
+        return self.transitions(self.sample_slots(batch_size, rng))
 
-        Returns:
-            A :class:`Batch` of ``batch_size`` transitions; rewards and ``done`` recomputed for
-            every transition's (possibly relabelled) goal.
-        """
+    def sample_slots(self, batch_size: int, rng: np.random.Generator) -> np.ndarray:
+        """(batch_size,) int64 slots of transitions drawn uniformly from the stored ones."""
         if self._num_transitions == 0:
             raise ValueError("cannot sample from an empty replay buffer")
-        slots = self._sample_transition_slots(batch_size, rng)
+        return self._sample_transition_slots(batch_size, rng)
+
+    def transitions(self, slots: np.ndarray) -> Batch:
+        """The transitions starting at `slots` (copies), rewards and `done` computed for the
+        goals they were recorded with."""
         obs = {key: array[slots] for key, array in self._obs.items()}
         next_obs = {key: array[slots + 1] for key, array in self._obs.items()}
-        relabel = rng.random(batch_size) < self.config.her_ratio
-        goal_slots = sample_goal_indices(
-            self.config.her_strategy,
-            slots[relabel],
-            self._first[slots[relabel]],
-            self._last[slots[relabel]],
-            rng,
-        )
-        goals = self._obs[ACHIEVED_GOAL][goal_slots]
-        obs[DESIRED_GOAL][relabel] = goals
-        next_obs[DESIRED_GOAL][relabel] = goals
         reward, done = reward_and_done(
             next_obs[ACHIEVED_GOAL],
             next_obs[DESIRED_GOAL],
@@ -366,6 +350,14 @@ class ReplayBuffer:
             done=done,
             collision=self._collision[slots].astype(np.float32),
         )
+
+    def episode_bounds(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First and last slot of the episode of each of `slots`, each (N,) int64."""
+        return self._first[slots], self._last[slots]
+
+    def observations(self, key: str, slots: np.ndarray) -> np.ndarray:
+        """Observation `key` at `slots` (a copy), e.g. the achieved goals HER relabels with."""
+        return self._obs[key][slots]
 
     def _sample_transition_slots(self, batch_size: int, rng: np.random.Generator) -> np.ndarray:
         """Uniform over stored transitions by rejection: all written slots but each episode's

@@ -140,6 +140,40 @@ def transitions(
     )
 
 
+def with_goals(
+    batch: Batch,
+    relabel: np.ndarray,
+    goals: np.ndarray,
+    compute_reward: RewardFn,
+    compute_terminated: TerminatedFn | None = None,
+) -> Batch:
+    """`batch` with the transitions where `relabel` is True given `goals` as their desired goal
+    (in `obs` and `next_obs`), rewards and terminal flags recomputed for them.
+
+    Args:
+        batch: N transitions (its arrays are modified in place and returned).
+        relabel: (N,) bool, which transitions get a new goal.
+        goals: (relabel.sum(), G) the new goals, in the order of the True entries.
+        compute_reward, compute_terminated: see :func:`reward_and_done`.
+    """
+    if not relabel.any():
+        return batch
+    obs, next_obs = batch["obs"], batch["next_obs"]
+    goals = goals.astype(obs[DESIRED_GOAL].dtype)
+    obs[DESIRED_GOAL][relabel] = goals
+    next_obs[DESIRED_GOAL][relabel] = goals
+    reward, done = reward_and_done(
+        next_obs[ACHIEVED_GOAL][relabel],
+        goals,
+        batch["collision"][relabel].astype(bool),
+        compute_reward,
+        compute_terminated,
+    )
+    batch["reward"][relabel] = reward
+    batch["done"][relabel] = done
+    return batch
+
+
 def _relabel(
     episode: Episode,
     strategy: HerStrategy,
