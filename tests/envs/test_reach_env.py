@@ -216,12 +216,25 @@ def test_each_id_samples_its_task_family():
         "CLAMGen/Reach-v0": (0, "reach"),
         "CLAMGen/ReachObstacles-v0": (2, "obstacles"),
         "CLAMGen/ReachBlocked-v0": (2, "blocked"),
+        "CLAMGen/ReachMixed-v0": (2, "mixed"),
     }
     # The same seed gives different tasks in the two obstacle families.
     standard, blocked = make(ENV_IDS[1]), make(ENV_IDS[2])
     standard.reset(seed=1)
     blocked.reset(seed=1)
     assert not np.array_equal(standard.task.target_position_m, blocked.task.target_position_m)
+
+
+def test_the_mixed_family_draws_blocked_and_standard_tasks():
+    from clamgen.baselines.ik_interpolation import IKInterpolationPolicy
+    from clamgen.experiments.evaluate import run_episode
+
+    env = make("CLAMGen/ReachMixed-v0")
+    blind_failures = [
+        not run_episode(env, IKInterpolationPolicy(), seed).success for seed in range(24)
+    ]
+    # Blocked tasks (about half) all defeat the obstacle-blind motion; standard ones mostly not.
+    assert 0.25 < np.mean(blind_failures) < 0.8
 
 
 def test_reset_replays_a_given_task():

@@ -1,5 +1,6 @@
-"""Gymnasium environments, registered as `CLAMGen/Reach-v0`, `CLAMGen/ReachObstacles-v0` and
-`CLAMGen/ReachBlocked-v0` (obstacle tasks whose obstacle-blind path is blocked)."""
+"""Gymnasium environments, registered as `CLAMGen/Reach-v0`, `CLAMGen/ReachObstacles-v0`,
+`CLAMGen/ReachBlocked-v0` (obstacle tasks whose obstacle-blind path is blocked) and
+`CLAMGen/ReachMixed-v0` (half blocked, half standard obstacle tasks: a training mix)."""
 
 import gymnasium as gym
 
@@ -12,12 +13,18 @@ from clamgen.envs.reach_env import (
     ReachEnv,
 )
 
-ENV_IDS = ("CLAMGen/Reach-v0", "CLAMGen/ReachObstacles-v0", "CLAMGen/ReachBlocked-v0")
+ENV_IDS = (
+    "CLAMGen/Reach-v0",
+    "CLAMGen/ReachObstacles-v0",
+    "CLAMGen/ReachBlocked-v0",
+    "CLAMGen/ReachMixed-v0",
+)
 # Env id -> (number of obstacles, task family in `clamgen.tasks.TASK_FAMILIES`).
 ENV_TASKS = {
     "CLAMGen/Reach-v0": (0, "reach"),
     "CLAMGen/ReachObstacles-v0": (2, "obstacles"),
     "CLAMGen/ReachBlocked-v0": (2, "blocked"),
+    "CLAMGen/ReachMixed-v0": (2, "mixed"),
 }
 
 
