@@ -58,6 +58,7 @@ def demo(config: DemoConfig) -> dict:
     import imageio.v3 as iio
 
     from clamgen.baselines import IKInterpolationPolicy
+    from clamgen.experiments.evaluate import run_episode
     from clamgen.sim import constants as C
 
     if config.env_id not in ENV_IDS:
@@ -75,33 +76,29 @@ def demo(config: DemoConfig) -> dict:
     policy = IKInterpolationPolicy()
     episodes = []
     picture = None
-    for i in range(config.num_episodes):
-        obs, _ = env.reset(seed=config.seed + i)
-        if picture is None:
+
+    def keep_first_views(obs, info, done) -> None:
+        nonlocal picture
+        if picture is None:  # the views of the first task, before any step
             picture = _views_picture(obs["images"], env.render())
-        policy.reset(env)
-        tip_path_m, collided, steps, start = 0.0, False, 0, time.perf_counter()
-        done = False
-        while not done:
-            previous_tip = obs["achieved_goal"]
-            obs, _, terminated, truncated, info = env.step(policy.act(obs))
-            tip_path_m += float(np.linalg.norm(obs["achieved_goal"] - previous_tip))
-            collided |= info["collision"]
-            steps += 1
-            done = terminated or truncated
+
+    for i in range(config.num_episodes):
+        seed = config.seed + i
+        start = time.perf_counter()
+        record = run_episode(env, policy, seed, on_step=keep_first_views)
         episode = {
-            "seed": config.seed + i,
-            "success": bool(info["is_success"] and not collided),
-            "reached": bool(info["is_success"]),
-            "collided": bool(collided),
-            "steps": steps,
-            "tip_path_m": round(tip_path_m, 4),
+            "seed": seed,
+            "success": record.success,
+            "reached": record.reached,
+            "collided": record.collided,
+            "steps": record.steps,
+            "tip_path_m": round(record.tip_path_m, 4),
             "seconds": round(time.perf_counter() - start, 3),
         }
         episodes.append(episode)
         print(
-            f"episode {i}: {'success' if episode['success'] else 'failure'} in {steps} steps, "
-            f"tip path {tip_path_m:.3f} m, collision: {collided}"
+            f"episode {i}: {'success' if record.success else 'failure'} in {record.steps} "
+            f"steps, tip path {record.tip_path_m:.3f} m, collision: {record.collided}"
         )
     env.close()
     picture_path = config.out_dir / "views.png"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,11 +35,24 @@ class EpisodeRecord:
         return self.reached and not self.collided
 
 
-def run_episode(env, policy: Policy, seed: int, options: dict | None = None) -> EpisodeRecord:
-    """One episode of `policy` in `env` (a Gymnasium env with a TimeLimit or its own)."""
+StepHook = Callable[[dict[str, Any], dict[str, Any] | None, bool], None]
+"""`hook(obs, info, done)`: called after the reset (info None) and after every step."""
+
+
+def run_episode(
+    env,
+    policy: Policy,
+    seed: int,
+    options: dict | None = None,
+    on_step: StepHook | None = None,
+) -> EpisodeRecord:
+    """One episode of `policy` in `env` (a Gymnasium env with a TimeLimit or its own): the one
+    rollout loop of evaluation, the demo and the videos, which watch it through `on_step`."""
     obs, _ = env.reset(seed=seed, options=options)
     policy.reset(env)
     record = EpisodeRecord(seed=seed, reached=False, collided=False, steps=0, tip_path_m=0.0)
+    if on_step is not None:
+        on_step(obs, None, False)
     done = False
     while not done:
         start = time.perf_counter()
@@ -53,6 +67,8 @@ def run_episode(env, policy: Policy, seed: int, options: dict | None = None) -> 
         record.reached |= bool(info.get("is_success", False))
         record.steps += 1
         done = terminated or truncated
+        if on_step is not None:
+            on_step(obs, info, done)
     return record
 
 

@@ -16,7 +16,8 @@ import numpy as np
 from PIL import Image, ImageDraw
 from tqdm import tqdm
 
-from clamgen.envs import ENV_IDS, ReachEnv
+from clamgen.envs import ENV_IDS, ENV_TASKS, ReachEnv
+from clamgen.experiments.evaluate import run_episode
 from clamgen.experiments.policies import PolicyName
 from clamgen.sim import constants as C
 from clamgen.sim.render import MultiViewRenderer
@@ -33,7 +34,7 @@ class RenderConfig:
     policy: PolicyName | Path = "base"
     """A shipped policy, `ik` (IK interpolation), `rrt`, or a policy file."""
     env_id: str = ENV_IDS[1]
-    """`CLAMGen/Reach-v0` or `CLAMGen/ReachObstacles-v0`."""
+    """A CLAMGen env id (its task family: reach, obstacles, blocked, mixed)."""
     num_episodes: int = 3
     """Episodes, one after the other in the same video."""
     seed: int = 1_000_000_000
@@ -117,8 +118,13 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
     speed = validate_speed(
         config.target_speed if config.target_speed == "variable" else float(config.target_speed)
     )
-    num_obstacles = 2 if config.env_id == ENV_IDS[1] else 0
-    env = ReachEnv(num_obstacles=num_obstacles, target_speed=speed, **(env_kwargs or {}))
+    num_obstacles, family = ENV_TASKS[config.env_id]
+    env = ReachEnv(
+        num_obstacles=num_obstacles,
+        task_family=family,
+        target_speed=speed,
+        **(env_kwargs or {}),
+    )
     renderer = RolloutRenderer(env, config.num_views)
     config.out.parent.mkdir(parents=True, exist_ok=True)
     mp4_path, gif_path = config.out.with_suffix(".mp4"), config.out.with_suffix(".gif")
@@ -127,43 +133,22 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
     bar = tqdm(total=config.num_episodes, unit="episode", desc="rendering")
     for i in range(config.num_episodes):
         seed = config.seed + i
-        obs, _ = env.reset(seed=seed)
-        policy.reset(env)
-        tips = [obs["achieved_goal"].copy()]
-        collided, reached, steps, done, frame = False, False, 0, False, None
-        while not done:
-            status = "COLLISION" if collided else "running"
-            lines = [
-                (f"{label}  episode {i + 1}/{config.num_episodes}  step {steps}", WHITE),
-                (status, RED if collided else WHITE),
-            ]
-            frame = renderer.frame(np.array(tips), lines)
-            writer.append_data(frame)
-            if steps % 2 == 0:
-                gif_frames.append(frame)
-            obs, _, terminated, truncated, info = env.step(policy.act(obs))
-            tips.append(obs["achieved_goal"].copy())
-            step_collided = bool(info["collision"])
-            collided |= step_collided
-            reached |= bool(info["is_success"])
-            steps += 1
-            done = terminated or truncated
-            if step_collided:
-                writer.append_data(renderer.frame(np.array(tips), lines, border=RED))
-        success = reached and not collided
-        outcome = ("SUCCESS" if success else "FAILURE", GREEN if success else RED)
-        lines = [(f"{label}  episode {i + 1}/{config.num_episodes}  step {steps}", WHITE), outcome]
-        final = renderer.frame(np.array(tips), lines, border=outcome[1])
+        caption = f"{label}  episode {i + 1}/{config.num_episodes}"
+        film = _EpisodeFilm(renderer, writer, gif_frames, caption)
+        record = run_episode(env, policy, seed, on_step=film)
+        outcome = ("SUCCESS" if record.success else "FAILURE", GREEN if record.success else RED)
+        lines = [(f"{caption}  step {record.steps}", WHITE), outcome]
+        final = renderer.frame(np.array(film.tips), lines, border=outcome[1])
         for _ in range(HOLD_FINAL_FRAMES):
             writer.append_data(final)
         gif_frames += [final] * (HOLD_FINAL_FRAMES // 2)
         episodes.append(
             {
                 "seed": seed,
-                "success": success,
-                "reached": reached,
-                "collided": collided,
-                "steps": steps,
+                "success": record.success,
+                "reached": record.reached,
+                "collided": record.collided,
+                "steps": record.steps,
             }
         )
         bar.update(1)
@@ -184,6 +169,36 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
     }
     config.out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     return summary
+
+
+class _EpisodeFilm:
+    """The frames of one episode, fed by the rollout loop's step hook: one per step with the tip
+    path so far, plus a red-bordered one for each step that collided; every other frame also
+    goes to the GIF."""
+
+    def __init__(self, renderer, writer, gif_frames: list, caption: str) -> None:
+        self.renderer, self.writer, self.gif_frames = renderer, writer, gif_frames
+        self.caption = caption
+        self.tips: list[np.ndarray] = []
+        self.collided = False
+
+    def lines(self, steps: int) -> list[tuple[str, tuple[int, int, int]]]:
+        status = ("COLLISION", RED) if self.collided else ("running", WHITE)
+        return [(f"{self.caption}  step {steps}", WHITE), status]
+
+    def __call__(self, obs: dict, info: dict | None, done: bool) -> None:
+        self.tips.append(obs["achieved_goal"].copy())
+        steps = len(self.tips) - 1
+        if info is not None and info["collision"]:
+            # The step that collided, with the status it started from, in a red border.
+            lines = self.lines(steps - 1)
+            self.writer.append_data(self.renderer.frame(np.array(self.tips), lines, border=RED))
+            self.collided = True
+        if not done:
+            frame = self.renderer.frame(np.array(self.tips), self.lines(steps))
+            self.writer.append_data(frame)
+            if steps % 2 == 0:
+                self.gif_frames.append(frame)
 
 
 def _scale(frame: np.ndarray, scale: float) -> np.ndarray:
