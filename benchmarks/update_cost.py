@@ -163,6 +163,7 @@ def main() -> None:
         f"{args.preset}: batch {config.agent.batch_size}, {config.env.num_views} views, "
         f"{config.agent.encoder.image_size} px crops, {args.threads} torch thread(s)"
     )
+    load_before = os.getloadavg()[0]
     timings = {}
     if args.baseline_rev:  # before and after the rows, the better of the two
         timings[f"code at {args.baseline_rev} (fp32)"] = time_revision(args.baseline_rev, args)
@@ -181,10 +182,13 @@ def main() -> None:
                 "threads": args.threads,
                 "ms_per_update": round(1e3 * seconds, 2),
                 "speedup_vs_reference": round(reference / seconds, 2),
+                # Other load on the machine (1-min load average, before and after the rows):
+                # absolute times grow with it, the ratios much less.
+                "load_average": f"{load_before:.1f}-{os.getloadavg()[0]:.1f}",
             }
         )
         print(f"  {name:50s} {1e3 * seconds:7.1f} ms/update   x{reference / seconds:.2f}")
-    print(f"reference: the first row ({rows[0]['option']})")
+    print(f"reference: the first row ({rows[0]['option']}); load average {rows[0]['load_average']}")
     if not args.no_csv:
         print("wrote", write_csv("update_cost", rows))
 
