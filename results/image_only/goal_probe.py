@@ -3,10 +3,13 @@
 Runs the state-regression head (`aux.state_weight > 0`) on 200 fresh `Reach-v0` observations
 and prints its errors, beside the error of always guessing the mean goal.
 
-    python results/image_only/goal_probe.py runs/image-only-cpu/checkpoints/latest.pt
+    python results/image_only/goal_probe.py runs/image-only-cpu/checkpoints
+
+(a run's checkpoint directory: its newest checkpoint is read; a `state.pt` path works too).
 """
 
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -15,13 +18,15 @@ import torch
 import clamgen  # noqa: F401  (registers the envs)
 from clamgen.agents.residual import LOW_DIM_KEYS, ResidualAgent
 from clamgen.agents.sac import flatten_obs
+from clamgen.experiments.checkpoint import latest_state_path
 from clamgen.experiments.config import config_from_json
 from clamgen.experiments.policies import resolve_policy_path
 from clamgen.experiments.stage2 import Stage2Config
 from clamgen.experiments.train import load_policy_agent
 
 torch.set_num_threads(1)
-payload = torch.load(sys.argv[1], weights_only=True)
+source = Path(sys.argv[1])
+payload = torch.load(latest_state_path(source) if source.is_dir() else source, weights_only=True)
 config = config_from_json(payload["config"], Stage2Config)
 base, _ = load_policy_agent(resolve_policy_path(config.base_policy))
 agent = ResidualAgent(config.agent, base)
