@@ -39,8 +39,16 @@ def test_intervals_contain_the_estimate_and_lie_within_the_scores():
 
 
 def test_identical_runs_give_a_zero_width_interval():
-    row = A.aggregate_rows({"a": A.score_matrix([0.7, 0.7, 0.7])}, reps=REPS)["a"]
-    assert (row.mean.low, row.mean.value, row.mean.high) == pytest.approx((0.7, 0.7, 0.7))
+    rows = A.aggregate_rows(
+        {"a": A.score_matrix([0.7, 0.7, 0.7]), "one": A.score_matrix([[0.4, 0.6]])}, reps=REPS
+    )
+    assert (rows["a"].mean.low, rows["a"].mean.value, rows["a"].mean.high) == pytest.approx(
+        (0.7, 0.7, 0.7)
+    )
+    # One run resamples to itself: its interval is its point.
+    assert (rows["one"].iqm.low, rows["one"].iqm.high) == pytest.approx((0.5, 0.5))
+    profile = A.performance_profiles({"one": A.score_matrix([0.3])}, np.array([0.2, 0.5]))["one"]
+    assert profile.fraction.tolist() == profile.low.tolist() == profile.high.tolist() == [1, 0]
 
 
 def test_probability_of_improvement_separated_identical_and_partial():
@@ -115,3 +123,17 @@ def test_score_matrix_refuses_ragged_or_empty_scores():
         A.score_matrix([])
     with pytest.raises(ValueError, match="finite"):
         A.score_matrix([0.1, float("nan")])
+
+
+def test_vectorised_aggregates_equal_rliables_own():
+    from rliable import library as rly
+    from rliable import metrics
+
+    scores = np.random.default_rng(0).uniform(size=(5, 2, 7))
+    per_step = A._per_step_mean_and_iqm(scores)
+    assert per_step[:7] == pytest.approx([metrics.aggregate_mean(scores[..., t]) for t in range(7)])
+    assert per_step[7:] == pytest.approx([metrics.aggregate_iqm(scores[..., t]) for t in range(7)])
+    taus = np.linspace(0, 1, 11)
+    assert A._score_distribution(scores[..., 0], taus) == pytest.approx(
+        rly.score_distributions(scores[..., 0], taus)
+    )

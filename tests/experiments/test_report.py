@@ -43,18 +43,76 @@ def write_results(root):
 
 def test_report_has_both_tables_curves_and_speed(tmp_path):
     write_results(tmp_path)
-    page = build_report(ReportConfig(results_dir=tmp_path))
+    page = build_report(ReportConfig(results_dir=tmp_path, reps=100))
     text = page.read_text()
     assert "## Table 1" in text and "| 5 | 1.000 | 1.00 | 0.950 | 0.902 |" in text
     assert "## Table 2" in text
     # Rows follow the paper's order: "no HER" before "RRT".
     assert text.index("| no HER (2 views) | 0.700 (") < text.index("| RRT with full")
     assert "| 0.625 |" in text  # the paper's number beside the standard column
-    assert (tmp_path / "figures" / "learning_curves.png").stat().st_size > 1000
+    # Single runs: the aggregate says so instead of inventing an interval.
+    assert "| joint policy | - (not trained) | 1.000 (1 run: no interval)" in text
+    assert (tmp_path / "figures" / "family_reach.png").stat().st_size > 1000
+    assert (tmp_path / "figures" / "family_obstacles.png").stat().st_size > 1000
+    # The speed table names the reference of every measurement.
+    assert "| 3-view 128 px RGBD frames/s | 400/s | PyBullet" in text and "| 4.00x" in text
     assert (tmp_path / "figures" / "speed.png").stat().st_size > 1000
-    assert "render_3view" in text
+
+
+def sweep_run(row, seed, table, scores, curve=((1000, 2000), (0.2, 0.6)), env=None):
+    env = env or ("CLAMGen/Reach-v0" if table == 1 else "CLAMGen/ReachObstacles-v0")
+    return {
+        "id": f"{row}/seed{seed}",
+        "row": row,
+        "seed": seed,
+        "status": "done",
+        "train_env": env,
+        "validation": {"steps": list(curve[0]), "success_rate": list(curve[1])},
+        "test": {"table": table, "observation": "images", "scores": scores},
+    }
+
+
+def test_report_aggregates_a_sweep_over_seeds(tmp_path):
+    write_results(tmp_path)
+    full, ablation = "CLAMGen, 2 RGBD views", "no HER (2 views)"
+    runs = [
+        sweep_run(full, s, 2, {"obstacles": 0.9 + 0.01 * s, "blocked": 0.6 + 0.01 * s})
+        for s in range(5)
+    ]
+    runs += [
+        sweep_run(ablation, s, 2, {"obstacles": 0.5 + 0.01 * s, "blocked": 0.7 + 0.01 * s})
+        for s in range(3)
+    ]
+    runs.append({**sweep_run(ablation, 9, 2, {"obstacles": 0.0}), "status": "failed"})
+    summary = {
+        "kind": "clamgen-sweep",
+        "name": "t",
+        "rows": [{"name": full}, {"name": ablation, "compare_to": full}],
+        "runs": runs,
+    }
+    (tmp_path / "sweeps").mkdir()
+    (tmp_path / "sweeps" / "summary.json").write_text(json.dumps(summary))
+    text = build_report(ReportConfig(results_dir=tmp_path, reps=200)).read_text()
+    # The sweep's runs replace the single-run table file of the same row; the failed run is out.
+    assert f"| {full} | 5 (0, 1, 2, 3, 4) | 0.920 (" in text
+    assert f"| {ablation} | 3 (0, 1, 2) | 0.510 (" in text
+    assert "| 0.900, 0.910, 0.920, 0.930, 0.940 |" in text
+    blocked = text[text.index("### Blocked-path tasks") :]
+    assert f"| {ablation} | 3 (0, 1, 2) | 0.710 (" in blocked
+    # Every full run beats every ablation run on the standard tasks, none does on blocked.
+    line = next(x for x in text.splitlines() if x.startswith(f"| {ablation} | {full} |"))
+    assert "| 1.00 (1.00-1.00) | holds: full CLAMGen better |" in line
+    assert "| 0.00 (0.00-0.00) | fails: ablation better |" in line
+    for family in ("obstacles", "blocked"):
+        assert (tmp_path / "figures" / f"family_{family}.png").stat().st_size > 1000
+    # Same inputs and bootstrap seed: the same page.
+    again = build_report(ReportConfig(results_dir=tmp_path, reps=200)).read_text()
+    assert again == text
 
 
 def test_report_refuses_a_missing_directory(tmp_path):
     with pytest.raises(FileNotFoundError, match="not found"):
         build_report(ReportConfig(results_dir=tmp_path / "nope"))
+    tmp_path.mkdir(exist_ok=True)
+    with pytest.raises(FileNotFoundError, match="sweep summary not found"):
+        build_report(ReportConfig(results_dir=tmp_path, sweep=(tmp_path / "none.json",)))

@@ -20,6 +20,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.stats
 from rliable import library as rly
 from rliable import metrics
 
@@ -87,6 +88,25 @@ def score_matrix(run_scores: Sequence[Sequence[float]]) -> np.ndarray:
     return matrix
 
 
+def _interval_estimates(
+    scores: Mapping[str, np.ndarray], func, reps: int, seed: int
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """`rliable.library.get_interval_estimates` for rows with several runs; a row with one run
+    resamples to itself every time, so its interval is its point (and costs no bootstrap)."""
+    several = {k: v for k, v in scores.items() if v.shape[0] > 1}
+    points, intervals = {}, {}
+    if several:
+        with seeded_numpy(seed):
+            points, intervals = rly.get_interval_estimates(
+                several, func, reps=reps, confidence_interval_size=CONFIDENCE
+            )
+    for name, matrix in scores.items():
+        if name not in several:
+            points[name] = np.asarray(func(matrix), dtype=float)
+            intervals[name] = np.stack([points[name], points[name]])
+    return points, intervals
+
+
 def _mean_and_iqm(scores: np.ndarray) -> np.ndarray:
     return np.array([metrics.aggregate_mean(scores), metrics.aggregate_iqm(scores)])
 
@@ -96,10 +116,7 @@ def aggregate_rows(
 ) -> dict[str, RowAggregate]:
     """Mean and IQM (25% trimmed mean over runs x conditions) of each row's score matrix, with
     95% stratified-bootstrap percentile intervals (`rliable.library.get_interval_estimates`)."""
-    with seeded_numpy(seed):
-        points, intervals = rly.get_interval_estimates(
-            dict(scores), _mean_and_iqm, reps=reps, confidence_interval_size=CONFIDENCE
-        )
+    points, intervals = _interval_estimates(scores, _mean_and_iqm, reps, seed)
     out = {}
     for name, matrix in scores.items():
         point, (low, high) = points[name], intervals[name]
@@ -154,6 +171,12 @@ class Profile:
     high: np.ndarray
 
 
+def _score_distribution(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """rliable's score distribution (`library.score_distributions`: the fraction of all scores
+    above each tau) for every tau at once; rliable's own loops over taus in Python."""
+    return np.mean(scores.reshape(-1, 1) > taus.reshape(1, -1), axis=0)
+
+
 def performance_profiles(
     scores: Mapping[str, np.ndarray],
     taus: np.ndarray = PROFILE_TAUS,
@@ -163,10 +186,21 @@ def performance_profiles(
     """Each row's score distribution (`rliable.library.create_performance_profile`): the
     fraction of its runs x conditions whose success exceeds tau, with 95% bootstrap bands."""
     taus = np.asarray(taus, dtype=float)
-    with seeded_numpy(seed):
-        fractions, intervals = rly.create_performance_profile(
-            dict(scores), taus, reps=reps, confidence_interval_size=CONFIDENCE
-        )
+    several = {k: v for k, v in scores.items() if v.shape[0] > 1}
+    fractions, intervals = {}, {}
+    if several:
+        with seeded_numpy(seed):
+            fractions, intervals = rly.create_performance_profile(
+                several,
+                taus,
+                custom_profile_func=_score_distribution,
+                reps=reps,
+                confidence_interval_size=CONFIDENCE,
+            )
+    for name, matrix in scores.items():
+        if name not in several:  # one run: its band is its profile
+            fractions[name] = _score_distribution(matrix, taus)
+            intervals[name] = np.stack([fractions[name], fractions[name]])
     return {
         name: Profile(taus, np.asarray(fractions[name]), *np.asarray(intervals[name]))
         for name in scores
@@ -205,6 +239,14 @@ def align_curves(
     return steps, values
 
 
+def _per_step_mean_and_iqm(scores: np.ndarray) -> np.ndarray:
+    """Mean and IQM at every step of a `(runs, conditions, steps)` array, concatenated: what
+    `metrics.aggregate_mean` / `metrics.aggregate_iqm` give on each step's `(runs, conditions)`
+    slice (the same 25% `scipy.stats.trim_mean`), in one call per bootstrap replication."""
+    flat = scores.reshape(-1, scores.shape[-1])
+    return np.concatenate([flat.mean(axis=0), scipy.stats.trim_mean(flat, 0.25, axis=0)])
+
+
 def sample_efficiency_curves(
     curves: Mapping[str, Sequence[tuple[Sequence[int], Sequence[float]]]],
     reps: int = DEFAULT_REPS,
@@ -220,15 +262,7 @@ def sample_efficiency_curves(
         if len(steps):
             arrays[name], step_lists[name] = values[:, None, :], steps
 
-    def per_step(scores: np.ndarray) -> np.ndarray:
-        means = [metrics.aggregate_mean(scores[..., t]) for t in range(scores.shape[-1])]
-        iqms = [metrics.aggregate_iqm(scores[..., t]) for t in range(scores.shape[-1])]
-        return np.array(means + iqms)
-
-    with seeded_numpy(seed):
-        points, intervals = rly.get_interval_estimates(
-            arrays, per_step, reps=reps, confidence_interval_size=CONFIDENCE
-        )
+    points, intervals = _interval_estimates(arrays, _per_step_mean_and_iqm, reps, seed)
     out = {}
     for name, steps in step_lists.items():
         n = len(steps)

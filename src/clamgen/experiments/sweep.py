@@ -522,6 +522,7 @@ def run_record(run: Run, status: str, error: str | None = None) -> dict[str, Any
         "train_command": "clamgen " + shlex.join(run.train_args),
         "eval_command": "clamgen " + shlex.join(run.eval_args),
         "status": status,
+        "train_env": _train_env(run.run_dir),
         "validation": {"steps": steps, "success_rate": values},
         "test": None,
     }
@@ -531,6 +532,13 @@ def run_record(run: Run, status: str, error: str | None = None) -> dict[str, Any
         record["eval_json"] = str(run.eval_json)
         record["test"] = eval_scores(run.eval_json)
     return record
+
+
+def _train_env(run_dir: Path) -> str | None:
+    """The env id the run trains (and validates) on, from its `config.json`."""
+    with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+        return json.loads((Path(run_dir) / "config.json").read_text())["env"]["env_id"]
+    return None
 
 
 def write_summary(spec: SweepSpec, runs: list[Run], statuses: dict[str, dict]) -> dict:
