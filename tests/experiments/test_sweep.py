@@ -150,7 +150,7 @@ def test_dry_run_prints_the_commands_and_runs_nothing(tmp_path, capsys):
     assert "2 runs" in out and "clamgen train --preset base" in out
     assert "--loop.total-env-steps 300" in out and "clamgen eval --table 1" in out
     assert summary["counts"] == {"done": 0, "running": 0, "failed": 0, "queued": 2}
-    assert not (tmp_path / "runs" / "short").exists()
+    assert not (tmp_path / "runs").exists()  # no run directory, no summary file
 
 
 def test_overrides_become_cli_flags():

@@ -541,8 +541,11 @@ def _train_env(run_dir: Path) -> str | None:
     return None
 
 
-def write_summary(spec: SweepSpec, runs: list[Run], statuses: dict[str, dict]) -> dict:
-    """Write the sweep's summary JSON (atomically) and return it."""
+def write_summary(
+    spec: SweepSpec, runs: list[Run], statuses: dict[str, dict], write: bool = True
+) -> dict:
+    """The sweep's summary; written (atomically) to `spec.summary_path` unless `write` is
+    False."""
     records = [run_record(r, **statuses[r.id]) for r in runs]
     counts = {s: sum(r["status"] == s for r in records) for s in ("done", "running", "failed")}
     counts["queued"] = len(records) - sum(counts.values())
@@ -567,6 +570,8 @@ def write_summary(spec: SweepSpec, runs: list[Run], statuses: dict[str, dict]) -
         ],
         "runs": records,
     }
+    if not write:
+        return summary
     spec.summary_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = spec.summary_path.with_name(spec.summary_path.name + ".tmp")
     tmp.write_text(json.dumps(summary, indent=1))
@@ -618,7 +623,7 @@ def run_sweep(config: SweepConfig) -> dict:
         for run in todo:
             print(f"{run.id}:\n  clamgen {shlex.join(run.train_args)}")
             print(f"  clamgen {shlex.join(run.eval_args)}")
-        return write_summary(spec, runs, statuses)
+        return write_summary(spec, runs, statuses, write=False)
     if not todo:
         summary = write_summary(spec, runs, statuses)
         print(f"nothing to do; summary: {spec.summary_path}")
@@ -626,7 +631,15 @@ def run_sweep(config: SweepConfig) -> dict:
     ray = _import_ray()
     started_here = not ray.is_initialized()
     if started_here:
-        _init_ray(ray, config)
+        try:
+            _init_ray(ray, config)
+        except Exception as error:  # Ray raises plain Exceptions for startup failures
+            where = f"the Ray cluster at {config.address}" if config.address else "local Ray"
+            first_line = str(error).strip().splitlines()[0] if str(error).strip() else ""
+            raise SystemExit(
+                f"could not start {where}: {type(error).__name__}: {first_line} "
+                "(on a heavily loaded machine Ray's 30 s startup can time out; run again)"
+            ) from error
     limit = config.max_concurrent or max(1, int(ray.cluster_resources().get("CPU", 1)))
     # One CPU per run; a lost worker is retried, which resumes from the checkpoint.
     remote = ray.remote(num_cpus=1, max_retries=2)(execute_run)
