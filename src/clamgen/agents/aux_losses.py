@@ -320,6 +320,8 @@ class AuxLoss(nn.Module):
     """
 
     name: ClassVar[str]
+    weight_field: ClassVar[str | None] = None
+    """The `AuxLossConfig` field holding a built-in loss's weight; None: `extra_weights`."""
     needs_images: ClassVar[bool] = False
     """Only built for image observations (the contrastive terms)."""
     in_policy: ClassVar[bool] = False
@@ -332,14 +334,16 @@ class AuxLoss(nn.Module):
 
     @classmethod
     def weight_in(cls, config: AuxLossConfig) -> float:
-        """This loss's weight in `config` (its entry in `extra_weights` unless built in)."""
+        """This loss's weight in `config`: its own field, or its entry in `extra_weights`."""
+        if cls.weight_field is not None:
+            return float(getattr(config, cls.weight_field))
         return float(config.extra_weights.get(cls.name, 0.0))
 
     @classmethod
     def configured(cls, config: AuxLossConfig, dims: AuxDims) -> bool:
-        """Whether an agent with this config and these inputs has the loss at all."""
-        built_in = cls.name in BUILT_IN_AUX_LOSSES
-        named = built_in or cls.name in config.extra_weights
+        """Whether an agent with this config and these inputs has the loss at all (built-in
+        losses always, others when `extra_weights` names them; image terms need images)."""
+        named = cls.weight_field is not None or cls.name in config.extra_weights
         return named and (dims.num_views > 0 or not cls.needs_images)
 
     def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
@@ -348,7 +352,6 @@ class AuxLoss(nn.Module):
 
 AUX_LOSSES: dict[str, type[AuxLoss]] = {}
 """Every registered auxiliary loss by name, in registration order (the order of the sum)."""
-BUILT_IN_AUX_LOSSES = ("collision", "state", "curl", "across_view")
 
 
 def register_aux_loss(cls: type[AuxLoss]) -> type[AuxLoss]:
@@ -376,15 +379,12 @@ class CollisionLoss(AuxLoss):
     """The paper's collision dynamics: from z_t and a_t, predict whether the step collides."""
 
     name = "collision"
+    weight_field = "collision_weight"
 
     def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
         super().__init__(dims, config)
         self.head = CollisionHead(dims.latent_dim, dims.action_dim, config.collision_hidden_sizes)
         self.pos_weight = config.collision_pos_weight
-
-    @classmethod
-    def weight_in(cls, config: AuxLossConfig) -> float:
-        return config.collision_weight
 
     def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
         logits = self.head(inputs.latent, inputs.action)
@@ -401,15 +401,12 @@ class StateLoss(AuxLoss):
     what `ResidualAgent.predict_state` and encoder pretraining use."""
 
     name = "state"
+    weight_field = "state_weight"
     in_policy = True
 
     def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
         super().__init__(dims, config)
         self.head = mlp(dims.feature_dim, (256,), dims.state_dim)
-
-    @classmethod
-    def weight_in(cls, config: AuxLossConfig) -> float:
-        return config.state_weight
 
     def regression(self, visual: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """MSE of the head's (B, 9) prediction from `visual` (B, Dv) to `state`."""
@@ -419,41 +416,35 @@ class StateLoss(AuxLoss):
         return self.regression(inputs.visual, inputs.state), {}
 
 
-@register_aux_loss
-class InstanceContrastiveLoss(AuxLoss):
-    """CURL's crop-vs-crop InfoNCE: the query crop's online encoding against the momentum
-    encoding of another crop of the same images."""
+class _BilinearContrastiveLoss(AuxLoss):
+    """A contrastive term with its own bilinear form W, started at the identity (the first
+    logits are dot products; see CURLHead)."""
 
-    name = "curl"
     needs_images = True
 
     def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
         super().__init__(dims, config)
-        # Identity start: the first logits are dot products (see CURLHead).
         self.W = nn.Parameter(torch.eye(dims.feature_dim))
 
-    @classmethod
-    def weight_in(cls, config: AuxLossConfig) -> float:
-        return config.curl_weight
+
+@register_aux_loss
+class InstanceContrastiveLoss(_BilinearContrastiveLoss):
+    """CURL's crop-vs-crop InfoNCE: the query crop's online encoding against the momentum
+    encoding of another crop of the same images."""
+
+    name = "curl"
+    weight_field = "curl_weight"
 
     def forward(self, inputs: AuxInputs) -> tuple[torch.Tensor, dict[str, float]]:
         return curl_loss(inputs.query_merged, inputs.key_merged, self.W), {}
 
 
 @register_aux_loss
-class AcrossViewLoss(AuxLoss):
+class AcrossViewLoss(_BilinearContrastiveLoss):
     """The paper's across-view contrastive term: views of one scene are positives."""
 
     name = "across_view"
-    needs_images = True
-
-    def __init__(self, dims: AuxDims, config: AuxLossConfig) -> None:
-        super().__init__(dims, config)
-        self.W = nn.Parameter(torch.eye(dims.feature_dim))
-
-    @classmethod
-    def weight_in(cls, config: AuxLossConfig) -> float:
-        return config.across_view_weight
+    weight_field = "across_view_weight"
 
     @classmethod
     def configured(cls, config: AuxLossConfig, dims: AuxDims) -> bool:
