@@ -226,15 +226,22 @@ def test_each_id_samples_its_task_family():
 
 
 def test_the_mixed_family_draws_blocked_and_standard_tasks():
-    from clamgen.baselines.ik_interpolation import IKInterpolationPolicy
-    from clamgen.experiments.evaluate import run_episode
+    from clamgen.sim.scene import Scene
+    from clamgen.tasks import MIXED_BLOCKED_FRACTION, TASK_FAMILIES
 
-    env = make("CLAMGen/ReachMixed-v0")
-    blind_failures = [
-        not run_episode(env, IKInterpolationPolicy(), seed).success for seed in range(24)
-    ]
-    # Blocked tasks (about half) all defeat the obstacle-blind motion; standard ones mostly not.
-    assert 0.25 < np.mean(blind_failures) < 0.8
+    mixed, blocked, standard = (TASK_FAMILIES[f][0] for f in ("mixed", "blocked", "obstacles"))
+    scene = Scene()
+    drew_blocked = []
+    for seed in range(12):
+        # The mixed family draws one uniform number, then samples the chosen family.
+        rng = np.random.default_rng(seed)
+        chose_blocked = rng.random() < MIXED_BLOCKED_FRACTION
+        expected = (blocked if chose_blocked else standard)(rng, scene, 2, 0.0)
+        task = mixed(np.random.default_rng(seed), scene, 2, 0.0)
+        np.testing.assert_array_equal(task.target_position_m, expected.target_position_m)
+        np.testing.assert_array_equal(task.obstacles.positions_m, expected.obstacles.positions_m)
+        drew_blocked.append(chose_blocked)
+    assert 0 < sum(drew_blocked) < len(drew_blocked)  # both families appear
 
 
 def test_reset_replays_a_given_task():
