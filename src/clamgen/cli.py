@@ -132,6 +132,8 @@ def train(config) -> dict:
     """Train the joint-space SAC base policy with HER and reversible HER (stage 1)."""
     from clamgen.experiments.train import train as run_training
 
+    if config.env.env_id not in ENV_IDS:
+        _check_other_env(config.env)
     summary = run_training(config)
     print(json.dumps(summary, indent=2))
     print(f"run directory: {config.run_dir} (policy: {config.run_dir / 'policy.pt'})")
@@ -191,13 +193,46 @@ def _train_config(argv: list[str], default_preset: str = "base", stage: int = 1)
         frozen=True,
     )
     name = "train" if stage == 1 else "train-residual"
+    other_envs = OTHER_ENVS_HELP if stage == 1 else ""
     parsed = tyro.cli(
         command,
         args=argv,
         prog=f"clamgen {name}",
-        description=f"{handler.__doc__} Options start from --preset {preset!r}. {PRESETS_HELP}",
+        description=f"{handler.__doc__} Options start from --preset {preset!r}. {PRESETS_HELP}"
+        f"{other_envs}",
     )
     return parsed.config
+
+
+OTHER_ENVS_HELP = (
+    " --env.env-id also takes any goal-conditioned Gymnasium env (a Dict observation with "
+    "observation, achieved_goal and desired_goal, and compute_reward), as MODULE:ID to import "
+    "the module that registers it first: --env.env-id panda_gym:PandaReach-v3 (pip install "
+    "panda-gym). Such an env logs no collision rate or tip path (it provides neither), and "
+    "`clamgen eval` / `clamgen render` run the policy on that env."
+)
+# EnvConfig fields that only CLAMGen envs read (value at which another env ignores them).
+CLAMGEN_ENV_OPTIONS = {
+    "target_speed": 0.0,
+    "num_views": 0,
+    "obs_mode": "joints",
+    "include_obstacle_state": False,
+}
+
+
+def _check_other_env(env_config) -> None:
+    """One line, before any training, when another env cannot be made or is given options
+    only CLAMGen envs have."""
+    from clamgen.experiments.evaluate import make_goal_env
+
+    for name, neutral in CLAMGEN_ENV_OPTIONS.items():
+        if getattr(env_config, name) != neutral:
+            flag = "--env." + name.replace("_", "-")
+            raise SystemExit(f"{flag} applies to CLAMGen envs only, not {env_config.env_id!r}")
+    try:
+        make_goal_env(env_config.env_id).close()
+    except ValueError as error:
+        raise SystemExit(str(error)) from error
 
 
 @dataclass(frozen=True)
@@ -270,6 +305,9 @@ def evaluate_table(config: EvalConfig) -> list:
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
     label = policy_label(config.policy)
+    env_id = _policy_env_id(config.policy)
+    if env_id not in ENV_IDS:
+        return _evaluate_other_env(config, policy, source, label, env_id)
     out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
     if config.table == 2:
         return _evaluate_table2(config, policy, source, label, out, env_kwargs)
@@ -299,15 +337,67 @@ def evaluate_table(config: EvalConfig) -> list:
     return rows
 
 
+def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: str) -> dict:
+    """A policy trained on another goal env, evaluated on that env's own tasks (Tables 1 and 2
+    are CLAMGen tasks): success rate and what else the env provides, on test seeds."""
+    from clamgen.experiments.evaluate import (
+        check_policy_fits,
+        evaluate,
+        make_goal_env,
+        summarize,
+    )
+
+    try:
+        env = make_goal_env(env_id)
+        check_policy_fits(policy, env, env_id)
+    except ValueError as error:
+        raise SystemExit(f"cannot evaluate {source}: {error}") from error
+    print(
+        f"{source} was trained on {env_id}; Tables 1 and 2 are CLAMGen tasks, so it is "
+        f"evaluated on {config.num_tasks} tasks of {env_id} (seeds from {config.first_seed})"
+    )
+    seeds = config.first_seed + np.arange(config.num_tasks)
+    summary = summarize(evaluate(env, policy, seeds))
+    env.close()
+    result = {
+        "policy": source,
+        "env_id": env_id,
+        "num_tasks": config.num_tasks,
+        "first_seed": config.first_seed,
+        "command": "clamgen eval " + " ".join(sys.argv[2:]),
+        **summary,
+    }
+    out = config.out or Path("runs/eval") / f"{label}_{_env_name(env_id)}"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(result, indent=2))
+    rows = [f"| {key} | {value:.4g} |" for key, value in summary.items()]
+    table = "\n".join([f"{source} on {env_id}", "", "| metric | value |", "|---|---|", *rows])
+    out.with_suffix(".md").write_text(table + "\n")
+    print(table)
+    print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
+    return result
+
+
+def _env_name(env_id: str) -> str:
+    """A file-name part for an env id: `panda_gym:PandaReach-v3` -> `pandareach`."""
+    return env_id.split(":")[-1].split("/")[-1].split("-")[0].lower()
+
+
 def render(config) -> dict:
     """Render rollouts of a policy (learned, IK interpolation or RRT) to MP4 and GIF."""
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.policies import policy_label
-    from clamgen.experiments.video import render_rollouts
+    from clamgen.experiments.video import render_env_rollouts, render_rollouts
 
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
-        summary = render_rollouts(config, policy, policy_label(config.policy), env_kwargs)
+        label = policy_label(config.policy)
+        env_id = _policy_env_id(config.policy)
+        if env_id in ENV_IDS:
+            summary = render_rollouts(config, policy, label, env_kwargs)
+        else:
+            print(f"{label} was trained on {env_id}: rendering its rollouts there")
+            summary = render_env_rollouts(config, policy, label, env_id)
     except (CheckpointError, ValueError) as error:
         raise SystemExit(str(error)) from error
     for episode in summary["episodes"]:
@@ -323,6 +413,23 @@ def _load_policy(name: str | Path) -> tuple:
     from clamgen.experiments.policies import load_policy
 
     return load_policy(name)
+
+
+@functools.cache
+def _policy_env_id(name: str | Path) -> str:
+    """The env a policy was trained on (from its policy file's config); CLAMGen's obstacle env
+    for the baselines, which need no training."""
+    from clamgen.experiments import checkpoint as ckpt
+
+    if name in BASELINES:
+        return ENV_IDS[1]
+    try:
+        payload = ckpt.load_torch(ckpt.resolve_policy_path(name), kind=None)
+        return json.loads(payload["config"])["env"]["env_id"]
+    except ckpt.CheckpointError as error:
+        raise SystemExit(str(error)) from error
+    except (KeyError, TypeError, ValueError) as error:
+        raise SystemExit(f"{name}: policy file without a training config ({error})") from error
 
 
 def _policy_num_views(name: str | Path) -> int | None:
@@ -412,6 +519,37 @@ def export_scene(config: ExportSceneConfig) -> Path:
     return out
 
 
+def view(config) -> dict:
+    """Watch a policy act live on seeded tasks in MuJoCo's interactive viewer."""
+    from clamgen.experiments.checkpoint import CheckpointError
+    from clamgen.experiments.policies import policy_label
+    from clamgen.experiments.viewer import view as run_viewer
+
+    env_id = _policy_env_id(config.policy)
+    if env_id not in ENV_IDS:
+        raise SystemExit(
+            f"{config.policy} was trained on {env_id}; the viewer shows CLAMGen scenes only "
+            "(`clamgen render` films other envs)"
+        )
+    try:
+        policy, _, env_kwargs = _load_policy(config.policy)
+        return run_viewer(config, policy, policy_label(config.policy), env_kwargs)
+    except (CheckpointError, ValueError) as error:
+        raise SystemExit(str(error)) from error
+
+
+def _view_config(argv: list[str]):
+    from clamgen.experiments import viewer
+
+    keys = (viewer.__doc__ or "").split("Keys: ", 1)[-1].split("\n\n")[0]
+    return tyro.cli(
+        viewer.ViewConfig,
+        args=argv,
+        prog="clamgen view",
+        description=f"{view.__doc__} Keys: {' '.join(keys.split())} {POLICIES_HELP}",
+    )
+
+
 def report(config) -> None:
     """Write results/REPORT.md: Tables 1 and 2 beside the paper, learning curves, speed."""
     from clamgen.experiments.report import build_report
@@ -475,6 +613,7 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
         lambda argv: tyro.cli(ExportSceneConfig, args=argv, prog="clamgen export-scene"),
         export_scene,
     ),
+    "view": (_view_config, view),
 }
 
 
@@ -485,7 +624,7 @@ def _usage() -> str:
     lines += [
         "",
         f"presets (train, train-residual --preset NAME): {', '.join(PRESET_NAMES)}",
-        f"shipped policies (eval, render --policy NAME): {', '.join(SHIPPED_POLICIES)}; "
+        f"shipped policies (eval, render, view --policy NAME): {', '.join(SHIPPED_POLICIES)}; "
         f"baselines: {', '.join(BASELINES)}",
         "",
         "Run `clamgen COMMAND --help` for the options of a command.",

@@ -7,8 +7,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
+from clamgen.envs import ReachEnv
 from clamgen.policy import Policy
 
 
@@ -28,6 +30,12 @@ class EpisodeRecord:
     """Wall time of each `policy.act` call."""
     step_times_s: list[float] = field(default_factory=list, repr=False)
     """Wall time of each `env.step` call (kinematics, collision checks, rendering)."""
+    collisions_reported: bool = True
+    """Every step's info said whether it collided (CLAMGen envs do; other goal envs may not,
+    and then `collided` stays False without meaning anything)."""
+    tip_measured: bool = True
+    """`tip_path_m` is the gripper tip's path: true in CLAMGen envs, whose `achieved_goal` is
+    the tip position in metres; another env's achieved goal may be anything."""
 
     @property
     def success(self) -> bool:
@@ -51,6 +59,7 @@ def run_episode(
     obs, _ = env.reset(seed=seed, options=options)
     policy.reset(env)
     record = EpisodeRecord(seed=seed, reached=False, collided=False, steps=0, tip_path_m=0.0)
+    record.tip_measured = isinstance(env.unwrapped, ReachEnv)
     if on_step is not None:
         on_step(obs, None, False)
     done = False
@@ -64,6 +73,7 @@ def run_episode(
         record.step_times_s.append(time.perf_counter() - start)
         record.tip_path_m += float(np.linalg.norm(obs["achieved_goal"] - previous_tip))
         record.collided |= bool(info.get("collision", False))
+        record.collisions_reported &= "collision" in info
         record.reached |= bool(info.get("is_success", False))
         record.steps += 1
         done = terminated or truncated
@@ -78,9 +88,11 @@ def evaluate(env, policy: Policy, seeds) -> list[EpisodeRecord]:
 
 
 def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
-    """Success rate, collision rate, mean steps and tip path, median act time (ms)."""
+    """Success rate, collision rate, mean steps and tip path, median act time (ms). The
+    collision rate and tip path are left out when the env does not provide them (see
+    `EpisodeRecord.collisions_reported` and `tip_measured`), rather than logged as zeros."""
     act_times = np.concatenate([r.act_times_s for r in records]) if records else np.zeros(1)
-    return {
+    summary = {
         "success_rate": float(np.mean([r.success for r in records])),
         "reach_rate": float(np.mean([r.reached for r in records])),
         "collision_rate": float(np.mean([r.collided for r in records])),
@@ -88,6 +100,11 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
         "mean_tip_path_m": float(np.mean([r.tip_path_m for r in records])),
         "median_act_ms": float(np.median(act_times) * 1e3),
     }
+    if not all(r.collisions_reported for r in records):
+        del summary["collision_rate"]
+    if not all(r.tip_measured for r in records):
+        del summary["mean_tip_path_m"]
+    return summary
 
 
 class SACPolicy:
@@ -102,3 +119,65 @@ class SACPolicy:
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         return self.agent.act(obs, deterministic=self.deterministic)
+
+
+# ------------------------------------------------------------ other goal-conditioned envs
+GOAL_KEYS = ("achieved_goal", "desired_goal")
+
+
+def make_goal_env(env_id: str, render_mode: str | None = None) -> gym.Env:
+    """A goal-conditioned Gymnasium env by id, through `gym.make`.
+
+    `module:id` (e.g. `panda_gym:PandaReach-v3`) imports `module` first, which registers `id`.
+    Goal-conditioned: a Dict observation with `achieved_goal` and `desired_goal`, and a
+    `compute_reward(achieved_goal, desired_goal, info)` (the contract HER needs). Raises a
+    one-line ValueError when the env cannot be made, is not goal-conditioned, or cannot render
+    `render_mode`.
+    """
+    module = env_id.split(":", 1)[0] if ":" in env_id else None
+    try:
+        env = gym.make(env_id, render_mode=render_mode) if render_mode else gym.make(env_id)
+    except ModuleNotFoundError as error:
+        missing = getattr(error.__cause__, "name", None) or error.name or module
+        raise ValueError(
+            f"env {env_id!r}: cannot import {module!r} (no module named {missing!r}); install "
+            "the package that registers it"
+        ) from error
+    except gym.error.Error as error:
+        where = f" (after importing {module!r})" if module else ""
+        raise ValueError(f"env {env_id!r}: {error}{where}") from error
+    space = env.observation_space
+    keys = space.spaces if isinstance(space, gym.spaces.Dict) else {}
+    if not all(key in keys for key in GOAL_KEYS) or not hasattr(env.unwrapped, "compute_reward"):
+        env.close()
+        raise ValueError(
+            f"env {env_id!r} is not goal-conditioned: it needs a Dict observation with "
+            "'achieved_goal' and 'desired_goal' and a compute_reward method"
+        )
+    if render_mode and render_mode not in env.metadata.get("render_modes", []):
+        env.close()
+        raise ValueError(
+            f"env {env_id!r} cannot render {render_mode!r} frames (its render modes: "
+            f"{env.metadata.get('render_modes', [])})"
+        )
+    return env
+
+
+def check_policy_fits(policy: Policy, env: gym.Env, env_id: str) -> None:
+    """A one-line ValueError when a learned policy's networks do not read `env`'s observations
+    or write its actions (baselines and other policies are not checked)."""
+    agent = getattr(policy, "agent", None)
+    keys = getattr(getattr(agent, "config", None), "obs_keys", None)
+    if agent is None or keys is None:
+        return
+    spaces = env.observation_space.spaces
+    missing = [key for key in keys if key not in spaces]
+    if missing:
+        raise ValueError(f"the policy reads {missing}, which env {env_id!r} does not observe")
+    obs_dim = sum(int(np.prod(spaces[key].shape)) for key in keys)
+    if obs_dim != agent.obs_dim or env.action_space.shape != (agent.action_dim,):
+        raise ValueError(
+            f"the policy reads {agent.obs_dim} observation values and writes "
+            f"{agent.action_dim} actions; env {env_id!r} gives {obs_dim} and takes "
+            f"{env.action_space.shape}"
+        )

@@ -207,3 +207,55 @@ def _scale(frame: np.ndarray, scale: float) -> np.ndarray:
     height, width = frame.shape[:2]
     size = (max(1, round(width * scale)), max(1, round(height * scale)))
     return np.asarray(Image.fromarray(frame).resize(size, Image.BILINEAR))
+
+
+def render_env_rollouts(config: RenderConfig, policy, label: str, env_id: str) -> dict:
+    """Roll out `policy` in another goal-conditioned env (`make_goal_env`: a Gymnasium id or
+    `module:id`) and write OUT.mp4, OUT.gif and OUT.json from the env's own `rgb_array` frames,
+    captioned like the CLAMGen videos. `config.env_id`, `num_views` and `target_speed` are
+    CLAMGen settings and do not apply. A one-line ValueError when the env cannot be made, does
+    not render frames, or does not fit the policy."""
+    from clamgen.experiments.evaluate import check_policy_fits, make_goal_env
+
+    if config.num_episodes < 1 or config.fps < 1:
+        raise ValueError("num_episodes and fps must be >= 1")
+    env = make_goal_env(env_id, render_mode="rgb_array")
+    try:
+        check_policy_fits(policy, env, env_id)
+        config.out.parent.mkdir(parents=True, exist_ok=True)
+        mp4_path, gif_path = config.out.with_suffix(".mp4"), config.out.with_suffix(".gif")
+        writer = imageio.get_writer(mp4_path, fps=config.fps, macro_block_size=1)
+        gif_frames, episodes = [], []
+        for i in range(config.num_episodes):
+            caption = f"{label}  episode {i + 1}/{config.num_episodes}"
+            frames: list[np.ndarray] = []
+
+            def film(obs, info, done, frames=frames, caption=caption) -> None:
+                lines = [(f"{caption}  step {len(frames)}", WHITE)]
+                frames.append(_caption(np.asarray(env.render()), lines))
+
+            record = run_episode(env, policy, config.seed + i, on_step=film)
+            outcome = ("SUCCESS" if record.success else "FAILURE", GREEN if record.success else RED)
+            final = _caption(frames[-1], [(f"{caption}  step {record.steps}", WHITE), outcome])
+            frames += [_border(final, outcome[1], width=2)] * HOLD_FINAL_FRAMES
+            for frame in frames:
+                writer.append_data(frame)
+            gif_frames += frames[::2]
+            episode = {"seed": config.seed + i, "success": record.success, "steps": record.steps}
+            if record.collisions_reported:
+                episode["collided"] = record.collided
+            episodes.append(episode)
+        writer.close()
+        scaled = [_scale(f, config.gif_scale) for f in gif_frames]
+        imageio.mimsave(gif_path, scaled, duration=2 / config.fps, loop=0)
+    finally:
+        env.close()
+    summary = {
+        "policy": label,
+        "env_id": env_id,
+        "episodes": episodes,
+        "mp4": str(mp4_path),
+        "gif": str(gif_path),
+    }
+    config.out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    return summary
