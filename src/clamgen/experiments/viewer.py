@@ -38,6 +38,7 @@ POLICY_CAMERA_RGBA = (0.0, 0.9, 1.0, 1.0)
 OTHER_CAMERA_RGBA = (0.7, 0.4, 1.0, 1.0)
 TIP_PATH_RGBA = (1.0, 0.85, 0.0, 1.0)
 MAX_PATH_POINTS = 300
+VIEWER_EXIT_TIMEOUT_S = 30.0
 # The free camera's start: the outside view's direction, far enough back to show the cameras.
 VIEW_LOOKAT_M = (0.45, 0.0, 0.25)
 VIEW_DISTANCE_M, VIEW_AZIMUTH_DEG, VIEW_ELEVATION_DEG = 2.7, 140.0, -25.0
@@ -304,6 +305,7 @@ def view(config: ViewConfig, policy, label: str, env_kwargs: dict | None = None)
     env.reset(seed=config.seed)  # the first task is on screen as the window opens
     keys = _Keys(config.paused)
     print("opening MuJoCo's viewer ...", flush=True)
+    threads_before = set(threading.enumerate())
     handle = mujoco.viewer.launch_passive(
         env.scene.model,
         env.scene.data,
@@ -351,6 +353,10 @@ def view(config: ViewConfig, policy, label: str, env_kwargs: dict | None = None)
         reason = str(stop)
     finally:
         handle.close()
+        # The window's thread tears down its GL context and GLFW after the close request;
+        # exiting (GLFW's atexit terminate) or closing the env's EGL contexts under it crashes.
+        for thread in set(threading.enumerate()) - threads_before:
+            thread.join(timeout=VIEWER_EXIT_TIMEOUT_S)
         env.close()
     print(f"viewer closed ({reason}) after {live.total_steps} steps", flush=True)
     return {
