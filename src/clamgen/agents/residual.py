@@ -63,7 +63,13 @@ from clamgen.agents.networks import (
     mlp,
     tanh_gaussian_sample,
 )
-from clamgen.agents.sac import SACAgent, finite_value, flatten_obs, soft_update
+from clamgen.agents.sac import (
+    SACAgent,
+    check_sac_settings,
+    finite_value,
+    flatten_obs,
+    soft_update,
+)
 from clamgen.replay.episode import Batch
 
 LOW_DIM_KEYS = ("observation", "desired_goal")
@@ -139,16 +145,19 @@ class ResidualConfig:
     """Torch device of every network, the frozen base and its normaliser included."""
 
     def __post_init__(self) -> None:
+        check_sac_settings(self)
+        for name, low in (("crop_padding", 0), ("warmup_updates", 0), ("obstacle_feature_dim", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
+                raise ValueError(f"agent.{name} must be an integer >= {low}, got {value!r}")
         if self.obs_source not in ("images", "obstacles"):
             raise ValueError(f"obs_source must be 'images' or 'obstacles', got {self.obs_source!r}")
-        if not 0.0 <= self.view_dropout < 1.0:
-            raise ValueError(f"view_dropout must be in [0, 1), got {self.view_dropout}")
+        if not 0.0 <= self.view_dropout < 1.0:  # NaN fails too
+            raise ValueError(f"agent.view_dropout must be in [0, 1), got {self.view_dropout}")
         if self.target_encoder not in ("target", "online"):
             raise ValueError(
                 f"target_encoder must be 'target' or 'online', got {self.target_encoder!r}"
             )
-        if self.crop_padding < 0:
-            raise ValueError("crop_padding must be >= 0")
         if not self.use_low_dim and (self.residual or self.obs_source != "images"):
             raise ValueError("use_low_dim=False (image-only) needs residual=False and images")
         if self.privileged_critic and self.use_low_dim:

@@ -30,6 +30,7 @@ __all__ = [
     "NonFiniteLossError",
     "SACAgent",
     "SACConfig",
+    "check_sac_settings",
     "finite_value",
     "flatten_obs",
     "soft_update",
@@ -74,6 +75,74 @@ class SACConfig:
     """Seed of the network initialisation and of the agent's own sampling noise."""
     device: str = "cpu"
     """Torch device; on "cpu", act() runs the numpy fast path."""
+
+    def __post_init__(self) -> None:
+        check_sac_settings(self)
+        if not self.obs_keys or not all(isinstance(key, str) for key in self.obs_keys):
+            raise ValueError(
+                f"agent.obs_keys must name one or more observation keys, got {self.obs_keys!r}"
+            )
+        target = self.target_entropy
+        if target is not None and not (_is_number(target) and math.isfinite(target)):
+            raise ValueError(f"agent.target_entropy must be a finite number or None, got {target}")
+        if not (_is_number(self.obs_clip) and 0 < self.obs_clip < math.inf):
+            raise ValueError(f"agent.obs_clip must be a finite number > 0, got {self.obs_clip}")
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+
+
+def check_sac_settings(config: Any) -> None:
+    """A ValueError naming the field, its value and what is allowed, for the settings SAC
+    agents share (`SACConfig`, the stage-2 `ResidualConfig`): learning rates, discount, Polyak
+    rate, batch size, temperature, reward scale, log-std range and hidden layer widths."""
+    for name in ("actor_lr", "critic_lr"):
+        value = getattr(config, name)
+        if not (_is_number(value) and 0 < value < math.inf):
+            raise ValueError(f"agent.{name} must be a finite number > 0, got {value}")
+    if not (_is_number(config.alpha_lr) and 0 <= config.alpha_lr < math.inf):
+        raise ValueError(
+            f"agent.alpha_lr must be a finite number >= 0 (0: the temperature stays at "
+            f"init_temperature), got {config.alpha_lr}"
+        )
+    if not (_is_number(config.gamma) and 0 <= config.gamma <= 1):
+        raise ValueError(f"agent.gamma must be in [0, 1], got {config.gamma}")
+    if not (_is_number(config.tau) and 0 < config.tau <= 1):
+        raise ValueError(f"agent.tau must be in (0, 1], got {config.tau}")
+    batch_size = config.batch_size
+    if (
+        not isinstance(batch_size, int | np.integer)
+        or isinstance(batch_size, bool)
+        or batch_size < 1
+    ):
+        raise ValueError(f"agent.batch_size must be an integer >= 1, got {batch_size!r}")
+    for name in ("init_temperature", "reward_scale"):
+        value = getattr(config, name)
+        if not (_is_number(value) and 0 < value < math.inf):
+            raise ValueError(f"agent.{name} must be a finite number > 0, got {value}")
+    sizes = config.hidden_sizes
+    if not (
+        isinstance(sizes, tuple | list)
+        and sizes
+        and all(
+            isinstance(n, int | np.integer) and not isinstance(n, bool) and n >= 1 for n in sizes
+        )
+    ):
+        raise ValueError(
+            f"agent.hidden_sizes must be one or more layer widths (integers >= 1), got {sizes!r}"
+        )
+    bounds = config.log_std_bounds
+    if not (
+        isinstance(bounds, tuple | list)
+        and len(bounds) == 2
+        and all(_is_number(b) and math.isfinite(b) for b in bounds)
+        and bounds[0] < bounds[1]
+    ):
+        raise ValueError(
+            f"agent.log_std_bounds must be two finite numbers (low, high) with low < high, "
+            f"got {bounds!r}"
+        )
 
 
 class NonFiniteLossError(FloatingPointError):

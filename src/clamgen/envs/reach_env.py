@@ -62,6 +62,10 @@ MAX_EPISODE_STEPS = 100
 COLLISION_CHECK_RESOLUTION_RAD = 0.01
 OBS_MODES = ("joints", "images", "both")
 DEFAULT_IMAGE_SIZE = 128
+# Largest view side accepted: the views of one render share an offscreen buffer of
+# num_views * image_size pixels across (4096 at 4 views, within every GL implementation's
+# framebuffer limit), and one 1024 px RGBD view is already 4 MiB per stored observation.
+MAX_IMAGE_SIZE = 1024
 
 
 @dataclass(frozen=True)
@@ -111,8 +115,7 @@ class ReachEnv(gym.Env):
         render_mode: str | None = None,
         task_family: str | None = None,
     ) -> None:
-        if not 0 <= num_obstacles <= C.MAX_OBSTACLES:
-            raise ValueError(f"num_obstacles must be in 0..{C.MAX_OBSTACLES}, got {num_obstacles}")
+        num_obstacles = _integer("num_obstacles", num_obstacles, 0, C.MAX_OBSTACLES)
         task_family = task_family or ("obstacles" if num_obstacles else "reach")
         if task_family not in TASK_FAMILIES:
             raise ValueError(
@@ -123,22 +126,33 @@ class ReachEnv(gym.Env):
                 f"task_family {task_family!r} needs num_obstacles "
                 f"{'>= 1' if TASK_FAMILIES[task_family][1] else '= 0'}, got {num_obstacles}"
             )
-        if not 0 <= num_views <= C.NUM_CAMERAS:
-            raise ValueError(f"num_views must be in 0..{C.NUM_CAMERAS}, got {num_views}")
+        num_views = _integer("num_views", num_views, 0, C.NUM_CAMERAS)
         if obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
         if obs_mode != "joints" and num_views == 0:
             raise ValueError(f"obs_mode={obs_mode!r} needs num_views >= 1")
-        if int(image_size) != image_size or image_size < 8:
-            raise ValueError(f"image_size must be an integer >= 8, got {image_size}")
-        if max_episode_steps is not None and max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        if obs_mode == "joints" and num_views > 0:
+            # Joint observations hold no images: the views would be dropped without a word.
+            raise ValueError(
+                f"num_views={num_views} renders images, but obs_mode='joints' observes none: "
+                "pass obs_mode='images' or 'both' to observe the views, or num_views=0"
+            )
+        image_size = _integer("image_size", image_size, 8, MAX_IMAGE_SIZE)
+        if max_episode_steps is not None:
+            max_episode_steps = _integer("max_episode_steps", max_episode_steps, 1)
+        if not (
+            isinstance(collision_margin_m, int | float | np.integer | np.floating)
+            and 0 <= collision_margin_m < np.inf
+        ):
+            raise ValueError(
+                f"collision_margin_m must be a finite number >= 0, got {collision_margin_m!r}"
+            )
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.num_obstacles = num_obstacles
         self.task_family = task_family
-        self.num_views = num_views if obs_mode != "joints" else 0
-        self.image_size = int(image_size)
+        self.num_views = num_views
+        self.image_size = image_size
         self.target_speed = reach.validate_speed(target_speed)
         self.obs_mode = obs_mode
         self.collision_penalty = collision_penalty  # validated by the setter
@@ -352,6 +366,18 @@ class ReachEnv(gym.Env):
     def _reset_info(self) -> dict[str, Any]:
         distance = float(np.linalg.norm(self.scene.tip_position() - self.scene.target_position))
         return {"is_success": distance < SUCCESS_DISTANCE_M, "distance_m": distance}
+
+
+def _integer(name: str, value: Any, low: int, high: int | None = None) -> int:
+    """`value` as an int if it is a whole number in low..high (high None: no limit), else a
+    ValueError naming `name`, the value and the range."""
+    allowed = f"an integer in {low}..{high}" if high is not None else f"an integer >= {low}"
+    whole = isinstance(value, int | np.integer) or (
+        isinstance(value, float | np.floating) and float(value).is_integer()
+    )
+    if isinstance(value, bool) or not whole or value < low or (high is not None and value > high):
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return int(value)
 
 
 def _collision_flags(info: Any, shape: tuple[int, ...]) -> np.ndarray | None:

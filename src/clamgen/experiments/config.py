@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import tomllib
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,8 +19,11 @@ import numpy as np
 
 from clamgen.agents.sac import SACConfig
 from clamgen.envs import ENV_IDS
+from clamgen.envs.reach_env import MAX_IMAGE_SIZE, OBS_MODES
 from clamgen.replay.buffer import ReplayConfig
 from clamgen.schedules import Constant, LinearRamp, Schedule
+from clamgen.sim.constants import NUM_CAMERAS
+from clamgen.tasks.reach import validate_speed
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
 
@@ -93,6 +97,18 @@ def check_training_seed(seed: int) -> int:
     return int(seed)
 
 
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+
+
+def _require_int(name: str, value: object, low: int, high: int | None = None) -> None:
+    """A ValueError naming `name` unless `value` is an integer in low..high (high: no limit)."""
+    is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
+    if not is_int or value < low or (high is not None and value > high):
+        allowed = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Which environment to train in, and how many copies step in lockstep."""
@@ -115,8 +131,20 @@ class EnvConfig:
     """Add the obstacles' true poses to observations (for the privileged residual)."""
 
     def __post_init__(self) -> None:
-        if self.num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {self.num_envs}")
+        _require_int("env.num_envs", self.num_envs, 1)
+        _require_int("env.num_views", self.num_views, 0, NUM_CAMERAS)
+        _require_int("env.image_size", self.image_size, 8, MAX_IMAGE_SIZE)
+        if self.obs_mode not in OBS_MODES:
+            raise ValueError(f"env.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}")
+        if (self.num_views > 0) != (self.obs_mode != "joints"):
+            raise ValueError(
+                f"env.num_views={self.num_views} does not fit env.obs_mode={self.obs_mode!r}: "
+                "views need obs_mode 'images' or 'both', and those modes need num_views >= 1"
+            )
+        try:
+            validate_speed(self.target_speed)
+        except ValueError as error:
+            raise ValueError(f"env.target_speed: {error}") from None
 
     def make_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for `gym.make` of a CLAMGen env."""
@@ -159,13 +187,20 @@ class LoopConfig:
     """Stop early once a periodic evaluation reaches this success rate (None: never)."""
 
     def __post_init__(self) -> None:
-        if self.total_env_steps < 1:
-            raise ValueError(f"total_env_steps must be >= 1, got {self.total_env_steps}")
-        if self.updates_per_step < 0:
-            raise ValueError(f"updates_per_step must be >= 0, got {self.updates_per_step}")
+        _require_int("loop.total_env_steps", self.total_env_steps, 1)
+        _require_int("loop.learning_starts", self.learning_starts, 0)
+        # `not x >= 0` also refuses NaN, which every comparison calls False.
+        if not (_is_number(self.updates_per_step) and 0 <= self.updates_per_step < np.inf):
+            raise ValueError(
+                f"loop.updates_per_step must be a finite number >= 0, got {self.updates_per_step}"
+            )
         for name in ("eval_every_steps", "checkpoint_every_steps", "log_every_steps"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0")
+            _require_int(f"loop.{name}", getattr(self, name), 0)
+        _require_int("loop.num_eval_episodes", self.num_eval_episodes, 1)
+        _require_int("loop.torch_threads", self.torch_threads, 1)
+        target = self.stop_at_success
+        if target is not None and not (_is_number(target) and 0 <= target <= 1):
+            raise ValueError(f"loop.stop_at_success must be in [0, 1] or None, got {target}")
         check_training_seed(self.seed)  # never a validation or test seed
 
 
@@ -204,37 +239,143 @@ def to_jsonable(config: Any) -> Any:
     return config
 
 
-def from_dict(cls: type, data: dict[str, Any]) -> Any:
-    """Build dataclass `cls` from (possibly partial) nested data; unknown keys are errors."""
+def from_dict(cls: type, data: dict[str, Any], where: str = "") -> Any:
+    """Build dataclass `cls` from (possibly partial) nested data; unknown keys are errors, and so
+    are values of the wrong type (a ValueError naming the field, the value and the type wanted).
+    `where` is the dotted name of `data` inside the outermost config ("" for that one)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{where or cls.__name__} must be a table of fields, got {data!r}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise ValueError(f"unknown {cls.__name__} fields {sorted(unknown)}; known: {sorted(names)}")
+        raise ValueError(
+            f"unknown {cls.__name__} fields {sorted(unknown)}"
+            f"{f' in {where}' if where else ''}; known: {sorted(names)}"
+        )
     kwargs = {}
     for name, value in data.items():
-        kwargs[name] = _convert(hints[name], value, f"{cls.__name__}.{name}")
-    return cls(**kwargs)
+        kwargs[name] = _convert(hints[name], value, f"{where}.{name}" if where else name)
+    try:
+        return cls(**kwargs)
+    except _FieldError:
+        raise
+    except ValueError as error:  # from __post_init__: say where, unless it already does
+        message = str(error)
+        if where and not message.startswith(f"{where}."):
+            message = f"{where}: {message}"
+        raise _FieldError(message) from error
+
+
+class _FieldError(ValueError):
+    """A bad value inside nested config data, its message already naming the field."""
 
 
 def _convert(hint: Any, value: Any, where: str) -> Any:
     if hint is Schedule or (
         typing.get_origin(hint) is not None and LinearRamp in typing.get_args(hint)
     ):
-        if isinstance(value, int | float):
+        if _is_number(value):
             return Constant(float(value))
+        if not isinstance(value, dict):
+            raise _FieldError(
+                f"{where} = {value!r}: expected a number or a schedule table with kind in "
+                f"{sorted(_SCHEDULES)}"
+            )
         data = dict(value)
         kind = data.pop("kind", None)
         if kind not in _SCHEDULES:
-            raise ValueError(f"{where}: schedule needs kind in {sorted(_SCHEDULES)}, got {kind!r}")
-        return from_dict(_SCHEDULES[kind], data)
+            raise _FieldError(f"{where}: schedule needs kind in {sorted(_SCHEDULES)}, got {kind!r}")
+        return from_dict(_SCHEDULES[kind], data, where)
     if dataclasses.is_dataclass(hint):
-        return from_dict(hint, value)
+        return from_dict(hint, value, where)
+    try:
+        return _typed(hint, value)
+    except TypeError:
+        raise _FieldError(f"{where} = {value!r}: expected {_describe(hint)}") from None
+
+
+def _typed(hint: Any, value: Any) -> Any:
+    """`value` as type `hint` (a list for a tuple, a string for a Path, an integer for a float);
+    a TypeError if it is not of that type. Hints other than those of config fields pass."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is type(None):
+        if value is not None:
+            raise TypeError
+        return None
+    if hint is bool:
+        if not isinstance(value, bool | np.bool_):
+            raise TypeError
+        return bool(value)
+    if hint is int:
+        if not isinstance(value, int | np.integer) or isinstance(value, bool):
+            raise TypeError
+        return int(value)
+    if hint is float:
+        if not _is_number(value):
+            raise TypeError
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise TypeError
+        return value
     if hint is Path:
+        if not isinstance(value, str | Path):
+            raise TypeError
         return Path(value)
-    if typing.get_origin(hint) is tuple and isinstance(value, list):
-        return tuple(value)
+    if origin is Literal:
+        for choice in args:
+            if value == choice and type(value) is type(choice):
+                return value
+        raise TypeError
+    if origin in (typing.Union, types.UnionType):
+        for option in args:
+            try:
+                return _typed(option, value)
+            except TypeError:
+                continue
+        raise TypeError
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise TypeError
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_typed(args[0], v) for v in value)
+        if len(value) != len(args):
+            raise TypeError
+        return tuple(_typed(a, v) for a, v in zip(args, value, strict=True))
     return value
+
+
+def _describe(hint: Any) -> str:
+    """What a value of type `hint` is, in words ("an integer", "a list of 2 numbers")."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    names = {
+        bool: "true or false",
+        int: "an integer",
+        float: "a number",
+        str: "a string",
+        Path: "a path (a string)",
+        type(None): "none",
+    }
+    if hint in names:
+        return names[hint]
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) for a in args)
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {_plural(args[0])}"
+        if len(set(args)) == 1:
+            return f"a list of {len(args)} {_plural(args[0])}"
+        return "a list of " + ", ".join(_describe(a) for a in args)
+    return getattr(hint, "__name__", str(hint))
+
+
+def _plural(hint: Any) -> str:
+    return {int: "integers", float: "numbers", str: "strings", bool: "booleans"}.get(
+        hint, f"values ({_describe(hint)})"
+    )
 
 
 def config_to_json(config: TrainConfig) -> str:
@@ -260,6 +401,12 @@ def resolve_preset(name_or_path: str) -> Path:
 def load_preset(name_or_path: str, cls: type = TrainConfig) -> Any:
     """The config (`cls`, e.g. TrainConfig) of a preset file; missing fields keep defaults."""
     path = resolve_preset(name_or_path)
-    with path.open("rb") as f:
-        data = tomllib.load(f)
-    return from_dict(cls, data)
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as error:
+        raise ValueError(f"preset {path}: TOML syntax error: {error}") from error
+    try:
+        return from_dict(cls, data)
+    except ValueError as error:
+        raise ValueError(f"preset {path}: {error}") from error

@@ -57,6 +57,78 @@ class Task:
     obstacles: Obstacles = field(default_factory=Obstacles.empty)
     speed: SpeedSpec = 0.0
 
+    def __post_init__(self) -> None:
+        # Checked here, where a task is made, so that a bad one fails in one line naming the
+        # field instead of deep inside the simulator or the planner.
+        joints = _finite_vector("start_joints", self.start_joints, ur5.NUM_JOINTS)
+        low, high = ur5.JOINT_LIMITS.T
+        if np.any(joints < low - JOINT_LIMIT_TOLERANCE_RAD) or np.any(
+            joints > high + JOINT_LIMIT_TOLERANCE_RAD
+        ):
+            raise ValueError(
+                "Task.start_joints must lie within the joint limits, |q| <= "
+                f"{np.round(high, 4).tolist()} rad, got {joints.tolist()}"
+            )
+        target = _finite_vector("target_position_m", self.target_position_m, 3)
+        velocity = _finite_vector("target_velocity_mps", self.target_velocity_mps, 3)
+        if not isinstance(self.obstacles, Obstacles):
+            raise ValueError(
+                "Task.obstacles must be a clamgen.sim.scene.Obstacles (Obstacles.empty() for "
+                f"none), got {self.obstacles!r}"
+            )
+        _check_obstacles(self.obstacles)
+        try:
+            speed = validate_speed(self.speed)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"Task.speed: {error}") from None
+        object.__setattr__(self, "start_joints", joints)
+        object.__setattr__(self, "target_position_m", target)
+        object.__setattr__(self, "target_velocity_mps", velocity)
+        object.__setattr__(self, "speed", speed)
+
+
+# Start joints may exceed the limits by this much (float32 round trips of joints at a limit).
+JOINT_LIMIT_TOLERANCE_RAD = 1e-6
+
+
+def _finite_vector(name: str, value: object, size: int) -> np.ndarray:
+    """`value` as a float64 array (size,), or a ValueError naming `Task.<name>`."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != (size,) or not np.all(np.isfinite(array)):
+        shown = value if array is None else array.tolist()
+        raise ValueError(f"Task.{name} must be {size} finite numbers, got {shown!r}")
+    return array
+
+
+def _check_obstacles(obstacles: Obstacles) -> None:
+    """A ValueError unless the obstacle arrays agree in length, hold finite positions and
+    positive finite half sizes, and name known kinds, at most `C.MAX_OBSTACLES` of them."""
+    kinds = np.asarray(obstacles.kinds)
+    num = len(kinds)
+    if kinds.ndim != 1 or num > C.MAX_OBSTACLES:
+        raise ValueError(
+            f"Task.obstacles must hold at most {C.MAX_OBSTACLES} obstacles (kinds of shape "
+            f"(N,)), got kinds of shape {kinds.shape}"
+        )
+    if not np.isin(kinds, (C.OBSTACLE_BOX, C.OBSTACLE_CYLINDER)).all():
+        raise ValueError(
+            f"Task.obstacles.kinds must be OBSTACLE_BOX ({C.OBSTACLE_BOX}) or OBSTACLE_CYLINDER "
+            f"({C.OBSTACLE_CYLINDER}), got {kinds.tolist()}"
+        )
+    for name in ("positions_m", "half_sizes_m"):
+        array = np.asarray(getattr(obstacles, name), dtype=np.float64)
+        if array.shape != (num, 3) or not np.all(np.isfinite(array)):
+            raise ValueError(
+                f"Task.obstacles.{name} must be ({num}, 3) finite numbers, got {array.tolist()}"
+            )
+    if np.any(np.asarray(obstacles.half_sizes_m) <= 0):
+        raise ValueError(
+            f"Task.obstacles.half_sizes_m must be > 0, got {np.asarray(obstacles.half_sizes_m)}"
+        )
+
 
 def validate_speed(speed: SpeedSpec) -> SpeedSpec:
     """A non-negative finite speed in m/s, or "variable"; anything else is a ValueError."""
@@ -64,6 +136,8 @@ def validate_speed(speed: SpeedSpec) -> SpeedSpec:
         if speed != "variable":
             raise ValueError(f"target speed must be a number (m/s) or 'variable', got {speed!r}")
         return speed
+    if isinstance(speed, bool) or not isinstance(speed, int | float | np.integer | np.floating):
+        raise ValueError(f"target speed must be a number (m/s) or 'variable', got {speed!r}")
     speed = float(speed)
     if not np.isfinite(speed) or speed < 0:
         raise ValueError(f"target speed must be finite and >= 0 m/s, got {speed}")
