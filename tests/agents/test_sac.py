@@ -13,8 +13,8 @@ from point_goal_env import PointGoalEnv
 
 from clamgen.agents.sac import NonFiniteLossError, SACAgent, SACConfig, flatten_obs
 from clamgen.replay.buffer import ReplayBuffer, ReplayConfig, obs_spec_from_space
-from clamgen.replay.pipeline import EpisodePipeline, HindsightConfig
 from clamgen.replay.episode import Batch, EpisodeRecorder
+from clamgen.replay.pipeline import EpisodePipeline, HindsightConfig
 
 torch.set_num_threads(1)
 
