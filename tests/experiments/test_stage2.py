@@ -60,7 +60,7 @@ def test_privileged_residual_trains_exports_and_loads(tmp_path, base_policy):
     # `clamgen eval --table 2` runs it with the observations it was trained on.
     from clamgen.cli import EvalConfig, evaluate_table
 
-    (row,) = evaluate_table(
+    rows = evaluate_table(
         EvalConfig(
             table=2,
             policy=str(config.run_dir / POLICY_NAME),
@@ -69,7 +69,9 @@ def test_privileged_residual_trains_exports_and_loads(tmp_path, base_policy):
             name="privileged",
         )
     )
-    assert row.name == "privileged" and 0 <= row.success_rate <= 1 and row.median_step_ms > 0
+    assert [row.family for row in rows] == ["obstacles", "blocked"]  # both task families
+    for row in rows:
+        assert row.name == "privileged" and 0 <= row.success_rate <= 1 and row.median_step_ms > 0
 
 
 def image_config(tmp_path, base_policy, **kwargs) -> Stage2Config:
@@ -137,10 +139,11 @@ def test_stage2_config_refuses_inconsistent_settings(tmp_path, base_policy):
 def test_shipped_vision_policy_runs_out_of_the_box(tmp_path):
     from clamgen.cli import EvalConfig, evaluate_table
 
-    (row,) = evaluate_table(
+    rows = evaluate_table(
         EvalConfig(table=2, policy="residual-2views", num_tasks=2, out=tmp_path / "row")
     )
-    assert 0 <= row.success_rate <= 1 and row.median_act_ms > 0
+    assert [row.family for row in rows] == ["obstacles", "blocked"]
+    assert all(0 <= row.success_rate <= 1 and row.median_act_ms > 0 for row in rows)
 
 
 def test_shipped_image_only_policy_acts_from_images_alone():
