@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import functools
+import importlib
 import json
+import re
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+import traceback
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, make_dataclass
 from importlib.resources import files
 from pathlib import Path
@@ -134,6 +140,7 @@ def train(config) -> dict:
 
     if config.env.env_id not in ENV_IDS:
         _check_other_env(config.env)
+    _check_run_dir(config.run_dir)
     summary = run_training(config)
     print(json.dumps(summary, indent=2))
     print(f"run directory: {config.run_dir} (policy: {config.run_dir / 'policy.pt'})")
@@ -144,10 +151,93 @@ def train_residual(config) -> dict:
     """Train the stage-2 vision residual on the frozen base policy (CLAMGen, Table 2)."""
     from clamgen.experiments.stage2 import Stage2Trainer
 
+    _check_run_dir(config.run_dir)
+    _check_base_policy(config.base_policy)
     summary = Stage2Trainer(config).run()
     print(json.dumps(summary, indent=2))
     print(f"run directory: {config.run_dir} (policy: {config.run_dir / 'policy.pt'})")
     return summary
+
+
+def _check_run_dir(run_dir: Path) -> None:
+    """A ValueError, before anything is built or written, when `run_dir` is a file or cannot
+    be written (nor created: its nearest existing parent is a file or cannot be written)."""
+    existing = Path(run_dir)
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        where = "is" if existing == Path(run_dir) else f"cannot be created: {existing} is"
+        raise ValueError(f"--run-dir {run_dir} {where} a file, not a directory")
+    try:  # the only sure test of writability (read-only mounts, root, ACLs)
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        where = "" if existing == Path(run_dir) else f"cannot be created: {existing} "
+        raise ValueError(
+            f"--run-dir {run_dir} {where}is not writable ({error.strerror or error})"
+        ) from error
+
+
+def _check_base_policy(name: str) -> None:
+    """A ValueError unless `name` is the shipped base policy or a stage-1 policy file."""
+    from clamgen.experiments import checkpoint as ckpt
+
+    path = ckpt.resolve_policy_path(name)
+    if name not in SHIPPED_POLICIES and not path.is_file():
+        hint = f"; its policy file is {path / 'policy.pt'}" if path.is_dir() else ""
+        raise ValueError(
+            f"--base-policy {name!r}: no such policy file{hint}; pass `base` (shipped) or the "
+            "policy file of a `clamgen train` run (RUN_DIR/policy.pt)"
+        )
+    payload = ckpt.load_torch(path, kind=None)
+    if payload.get("kind") != ckpt.POLICY_KIND:
+        raise ValueError(
+            f"--base-policy {name!r} holds a {payload.get('kind')!r}, not a stage-1 policy "
+            f"({ckpt.POLICY_KIND!r}); pass `base` or the policy file of a `clamgen train` run"
+        )
+
+
+def _check_policy(name: str | Path) -> None:
+    """A ValueError listing the valid names when `name` is neither a shipped policy, nor a
+    baseline, nor an existing file; an ImportError when `rrt` lacks its planner (OMPL)."""
+    if name == "rrt":
+        try:
+            for module in ("ompl.base", "ompl.geometric"):
+                importlib.import_module(module)
+        except ImportError as error:
+            raise ImportError(
+                "--policy rrt needs OMPL 2 (`pip install ompl`, or clamgen[planning])"
+            ) from error
+    if name in (*SHIPPED_POLICIES, *BASELINES) or Path(name).is_file():
+        return
+    hint = f" ({name} is a directory; its policy file is {Path(name) / 'policy.pt'})"
+    raise ValueError(
+        f"--policy {str(name)!r} not found{hint if Path(name).is_dir() else ''}; choose one of "
+        f"{', '.join((*SHIPPED_POLICIES, *BASELINES))}, or the path of a policy file "
+        "(RUN_DIR/policy.pt from `clamgen train` / `clamgen train-residual`)"
+    )
+
+
+def output_label(name: str | Path) -> str:
+    """The policy's name in default output file names: a shipped policy's or baseline's own
+    name; for a run's policy file (RUN_DIR/policy.pt) the run directory's name, with its
+    parent's for a seed directory (sweeps: ROW/seed0/policy.pt -> ROW_seed0); else the stem."""
+    if name in (*SHIPPED_POLICIES, *BASELINES):
+        return str(name)
+    path = Path(name).absolute()
+    if path.name != "policy.pt":
+        return path.stem
+    run = path.parent
+    return f"{run.parent.name}_{run.name}" if re.fullmatch(r"seed\d+", run.name) else run.name
+
+
+def _refuse_to_overwrite(stem: Path, suffixes: tuple[str, ...], overwrite: bool) -> None:
+    """A FileExistsError when an output `stem` + suffix exists and `overwrite` is False."""
+    existing = [stem.with_suffix(s) for s in suffixes if stem.with_suffix(s).exists()]
+    if existing and not overwrite:
+        raise FileExistsError(
+            f"{existing[0]} exists; pass --overwrite to replace it, or --out to write elsewhere"
+        )
 
 
 def _option_value(argv: list[str], flag: str) -> str | None:
@@ -257,7 +347,11 @@ class EvalConfig:
     speeds: tuple[str, ...] = ("0", "0.05", "0.1", "0.2", "variable")
     """Target speeds in m/s, or `variable`, one table row each."""
     out: Path | None = None
-    """Output stem: writes OUT.json and OUT.md (default: runs/eval/table<N>_<policy>)."""
+    """Output stem: writes OUT.json and OUT.md (default: runs/eval/table<N>_<policy>, the
+    policy's name or, for RUN_DIR/policy.pt, the run directory's)."""
+    overwrite: bool = False
+    """Replace OUT.json and OUT.md if they exist (otherwise an existing result is kept and
+    nothing is evaluated)."""
     name: str | None = None
     """Table 2 row name (default: from the policy)."""
     torch_threads: int = 1
@@ -278,8 +372,14 @@ def evaluate_table(config: EvalConfig) -> list:
         raise SystemExit(f"--table must be 1 or 2, got {config.table}")
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.config import check_table_seeds
-    from clamgen.experiments.policies import load_policy, policy_label, policy_observation
-    from clamgen.experiments.tables import TABLE2_FAMILIES, table1, table1_markdown, write_table1
+    from clamgen.experiments.policies import load_policy, policy_observation
+    from clamgen.experiments.tables import (
+        RRT_TABLE1_NOTE,
+        TABLE2_FAMILIES,
+        table1,
+        table1_markdown,
+        write_table1,
+    )
     from clamgen.tasks.reach import validate_speed
 
     if config.num_tasks < 1:
@@ -301,16 +401,25 @@ def evaluate_table(config: EvalConfig) -> list:
     except ValueError as error:
         raise SystemExit(f"bad --speeds: {error}") from error
     try:
+        _check_policy(config.policy)
+    except (ValueError, ImportError) as error:
+        raise SystemExit(str(error)) from error
+    label = output_label(config.policy)
+    env_id = _policy_env_id(config.policy)
+    out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
+    if env_id in ENV_IDS:  # (another env's results are named after it, and checked there)
+        _refuse_to_overwrite(out, (".json", ".md"), config.overwrite)
+    try:
         policy, source, env_kwargs = load_policy(config.policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
-    label = policy_label(config.policy)
-    env_id = _policy_env_id(config.policy)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
-    out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
     if config.table == 2:
         return _evaluate_table2(config, policy, source, label, out, env_kwargs)
+    note = RRT_TABLE1_NOTE if config.policy == "rrt" else None
+    if note:
+        print(f"note: {note}")
     print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")
     rows = table1(
         policy,
@@ -329,10 +438,11 @@ def evaluate_table(config: EvalConfig) -> list:
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
         "command": "clamgen eval " + " ".join(sys.argv[2:]),
+        **({"note": note} if note else {}),
     }
     write_table1(rows, out, meta)
     print()
-    print(table1_markdown(rows, meta["observation"]))
+    print(table1_markdown(rows, meta["observation"], note))
     print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
     return rows
 
@@ -347,6 +457,8 @@ def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: 
         summarize,
     )
 
+    out = config.out or Path("runs/eval") / f"{label}_{_env_name(env_id)}"
+    _refuse_to_overwrite(out, (".json", ".md"), config.overwrite)
     try:
         env = make_goal_env(env_id)
         check_policy_fits(policy, env, env_id)
@@ -367,7 +479,6 @@ def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: 
         "command": "clamgen eval " + " ".join(sys.argv[2:]),
         **summary,
     }
-    out = config.out or Path("runs/eval") / f"{label}_{_env_name(env_id)}"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2))
     rows = [f"| {key} | {value:.4g} |" for key, value in summary.items()]
@@ -386,12 +497,12 @@ def _env_name(env_id: str) -> str:
 def render(config) -> dict:
     """Render rollouts of a policy (learned, IK interpolation or RRT) to MP4 and GIF."""
     from clamgen.experiments.checkpoint import CheckpointError
-    from clamgen.experiments.policies import policy_label
-    from clamgen.experiments.video import render_env_rollouts, render_rollouts
+    from clamgen.experiments.video import output_stem, render_env_rollouts, render_rollouts
 
+    label = output_label(config.policy)
+    config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
-        label = policy_label(config.policy)
         env_id = _policy_env_id(config.policy)
         if env_id in ENV_IDS:
             summary = render_rollouts(config, policy, label, env_kwargs)
@@ -450,6 +561,8 @@ def _render_config(argv: list[str]):
 
     name = _option_value(argv, "--policy") or RenderConfig.policy
     policy = name if name in (*SHIPPED_POLICIES, *BASELINES) else Path(name)
+    if "-h" not in argv and "--help" not in argv:
+        _check_policy(policy)
     default = RenderConfig(policy=policy, num_views=_policy_num_views(policy) or 3)
     return tyro.cli(
         RenderConfig,
@@ -465,7 +578,7 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
     """One Table 2 row name, one `ObstacleRow` per task family (written together)."""
     from clamgen.experiments.tables import FAMILY_TITLES, table2_markdown, table2_row, write_table2
 
-    name = config.name or TABLE2_ROW_NAMES.get(config.policy, label)
+    name = config.name or TABLE2_ROW_NAMES.get(str(config.policy), label)
     rows = []
     for family in config.families:
         print(f"evaluating {source} on {config.num_tasks} held-out {FAMILY_TITLES[family]} ...")
@@ -618,7 +731,7 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
 
 
 def _usage() -> str:
-    lines = ["usage: clamgen COMMAND [OPTIONS]", "", DESCRIPTION, "", "commands:"]
+    lines = ["usage: clamgen [--debug] COMMAND [OPTIONS]", "", DESCRIPTION, "", "commands:"]
     for name, (_, handler) in COMMANDS.items():
         lines.append(f"  {name:<14} {(handler.__doc__ or '').splitlines()[0]}")
     lines += [
@@ -627,14 +740,25 @@ def _usage() -> str:
         f"shipped policies (eval, render, view --policy NAME): {', '.join(SHIPPED_POLICIES)}; "
         f"baselines: {', '.join(BASELINES)}",
         "",
-        "Run `clamgen COMMAND --help` for the options of a command.",
+        "Run `clamgen COMMAND --help` for the options of a command. An error is reported in one "
+        "line; --debug shows its traceback.",
     ]
     return "\n".join(lines)
 
 
+# What a bad input, file or environment raises in this project (bad values, bad or missing
+# files, an unwritable run directory, a missing optional dependency): reported in one line.
+# Other exceptions are bugs and keep their traceback.
+USER_ERRORS = (ValueError, OSError, ImportError)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the `clamgen` console command."""
+    """Entry point of the `clamgen` console command. A user error (`USER_ERRORS`, or a
+    command's own message) ends in one line on stderr and exit status 1; `--debug` anywhere on
+    the command line shows the traceback instead."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv
+    argv = [arg for arg in argv if arg != "--debug"]
     if not argv or argv[0] in ("-h", "--help"):
         print(_usage())
         return
@@ -643,7 +767,58 @@ def main(argv: list[str] | None = None) -> None:
         print(_usage(), file=sys.stderr)
         raise SystemExit(f"\nunknown command {name!r}")
     build_config, handler = COMMANDS[name]
-    handler(build_config(rest))
+    try:
+        with _config_errors_raised():
+            config = build_config(rest)
+        handler(config)
+    except USER_ERRORS as error:
+        if debug:
+            raise
+        raise SystemExit(f"clamgen {name}: {_one_line(str(error))}") from error
+    except SystemExit as stop:
+        if not isinstance(stop.code, str):  # tyro's usage errors (2), --help (0)
+            raise
+        if debug and stop.__cause__ is not None:
+            traceback.print_exception(stop.__cause__)
+        raise SystemExit(f"clamgen {name}: {_one_line(stop.code)}") from stop.__cause__
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"clamgen {name}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None  # the status a shell reports for Ctrl-C
+
+
+@contextlib.contextmanager
+def _config_errors_raised() -> Iterator[None]:
+    """Let a config class's own ValueError (from `__post_init__`) propagate out of `tyro.cli`.
+
+    tyro reports a ValueError raised while it builds a nested config in a box and exits 2; here
+    it is raised again, so that `main` reports it in one line like any other bad value. tyro's
+    hook for that is private (`tyro._errors.on_parse_error`); without it tyro's box stays.
+    tyro's own parse errors (unknown flags, values of the wrong type) keep tyro's report."""
+    try:
+        errors = importlib.import_module("tyro._errors")
+        on_parse_error, failure = errors.on_parse_error, errors.InstantiationFailure
+    except (ImportError, AttributeError):
+        yield
+        return
+
+    def raise_config_error(event) -> None:
+        # A failure attributed to no single argument comes from a constructor; tyro calls the
+        # hook while handling its wrapper, whose context is the constructor's ValueError.
+        if isinstance(event, failure) and getattr(event, "argument", None) is None:
+            cause = sys.exc_info()[1]
+            original = getattr(cause, "__context__", None)
+            if isinstance(original, ValueError):
+                raise original
+            raise ValueError(event.message)
+
+    with on_parse_error(raise_config_error):
+        yield
+
+
+def _one_line(message: str) -> str:
+    return "; ".join(line.strip() for line in message.splitlines() if line.strip()) or "error"
 
 
 if __name__ == "__main__":

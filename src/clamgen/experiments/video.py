@@ -43,8 +43,12 @@ class RenderConfig:
     """Target speed in m/s, or `variable`."""
     num_views: int = 3
     """Policy camera views shown beside the outside view (0 to 4)."""
-    out: Path = Path("runs/videos/rollout")
-    """Output stem: writes OUT.mp4, OUT.gif and OUT.json (what happened in each episode)."""
+    out: Path | None = None
+    """Output stem: writes OUT.mp4, OUT.gif and OUT.json (what happened in each episode);
+    default runs/videos/<policy> (the policy's name or, for RUN_DIR/policy.pt, the run's)."""
+    overwrite: bool = False
+    """Replace the output files if they exist (otherwise existing files are kept and nothing
+    is rendered)."""
     fps: int = 20
     """Frames per second (the control rate is 20 Hz: real time)."""
     gif_scale: float = 0.5
@@ -105,6 +109,20 @@ class RolloutRenderer:
             self.views.close()
 
 
+def output_stem(config: RenderConfig, label: str) -> Path:
+    """Where `config` writes (`config.out`, default runs/videos/`label`); a FileExistsError
+    when one of its files exists and `config.overwrite` is False."""
+    out = config.out or Path("runs/videos") / label
+    existing = [
+        out.with_suffix(s) for s in (".mp4", ".gif", ".json") if out.with_suffix(s).exists()
+    ]
+    if existing and not config.overwrite:
+        raise FileExistsError(
+            f"{existing[0]} exists; pass --overwrite to replace it, or --out to write elsewhere"
+        )
+    return out
+
+
 def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -> dict:
     """Roll out `policy` and write the video files; returns the episode summary."""
     from clamgen.tasks.reach import validate_speed
@@ -115,6 +133,7 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         raise ValueError(f"num_views must be in 0..{C.NUM_CAMERAS}")
     if config.num_episodes < 1 or config.fps < 1:
         raise ValueError("num_episodes and fps must be >= 1")
+    out = output_stem(config, label)
     speed = validate_speed(
         config.target_speed if config.target_speed == "variable" else float(config.target_speed)
     )
@@ -126,8 +145,8 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         **(env_kwargs or {}),
     )
     renderer = RolloutRenderer(env, config.num_views)
-    config.out.parent.mkdir(parents=True, exist_ok=True)
-    mp4_path, gif_path = config.out.with_suffix(".mp4"), config.out.with_suffix(".gif")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    mp4_path, gif_path = out.with_suffix(".mp4"), out.with_suffix(".gif")
     writer = imageio.get_writer(mp4_path, fps=config.fps, macro_block_size=8)
     gif_frames, episodes = [], []
     bar = tqdm(total=config.num_episodes, unit="episode", desc="rendering")
@@ -167,7 +186,7 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         "mp4": str(mp4_path),
         "gif": str(gif_path),
     }
-    config.out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
@@ -219,11 +238,12 @@ def render_env_rollouts(config: RenderConfig, policy, label: str, env_id: str) -
 
     if config.num_episodes < 1 or config.fps < 1:
         raise ValueError("num_episodes and fps must be >= 1")
+    out = output_stem(config, label)
     env = make_goal_env(env_id, render_mode="rgb_array")
     try:
         check_policy_fits(policy, env, env_id)
-        config.out.parent.mkdir(parents=True, exist_ok=True)
-        mp4_path, gif_path = config.out.with_suffix(".mp4"), config.out.with_suffix(".gif")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        mp4_path, gif_path = out.with_suffix(".mp4"), out.with_suffix(".gif")
         writer = imageio.get_writer(mp4_path, fps=config.fps, macro_block_size=1)
         gif_frames, episodes = [], []
         for i in range(config.num_episodes):
@@ -257,5 +277,5 @@ def render_env_rollouts(config: RenderConfig, policy, label: str, env_id: str) -
         "mp4": str(mp4_path),
         "gif": str(gif_path),
     }
-    config.out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     return summary
