@@ -17,10 +17,13 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-# The main job on a small default: the shipped joint policy on 20 held-out tasks per target
-# speed (Table 1 beside the paper), then a picture of every camera view.
+# The main job on a small default: the shipped 2-view vision policy beside obstacle-blind IK
+# interpolation on 10 held-out blocked-path tasks (both success rates printed), a GIF of one
+# vision rollout, then a picture of every camera view.
 demo: install
-	$(VENV)/bin/clamgen eval --policy base --num-tasks 20 --out runs/demo/table1_base
+	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --out runs/demo/blocked_clamgen --overwrite
+	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy ik --out runs/demo/blocked_ik --overwrite
+	$(VENV)/bin/clamgen render --policy residual-2views --env-id CLAMGen/ReachBlocked-v0 --num-episodes 1 --out runs/demo/blocked_rollout --overwrite
 	$(VENV)/bin/clamgen demo --num-episodes 3
 
 test: install
