@@ -139,7 +139,7 @@ def test_without_ray_the_command_says_what_to_install(tmp_path, monkeypatch, cap
     spec = write_spec(tmp_path, TINY.format(root=tmp_path / "runs"))
     with pytest.raises(SystemExit) as error:
         cli.main(["sweep", str(spec)])
-    assert str(error.value) == S.INSTALL_HINT
+    assert str(error.value) == f"clamgen sweep: {S.INSTALL_HINT}"
     assert "pip install 'clamgen[sweep]'" in S.INSTALL_HINT and "\n" not in S.INSTALL_HINT
 
 

@@ -64,7 +64,7 @@ from typing import Annotated, Any
 
 import tyro
 
-INSTALL_HINT = "clamgen sweep needs Ray: pip install 'clamgen[sweep]' (or: pip install ray)"
+INSTALL_HINT = "Ray is not installed: pip install 'clamgen[sweep]' (or: pip install ray)"
 COMMANDS = ("train", "train-residual")
 POLICY_FILE = "policy.pt"
 EVAL_STEM = "eval"
