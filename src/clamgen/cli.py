@@ -93,11 +93,7 @@ def demo(config: DemoConfig) -> dict:
         start = time.perf_counter()
         record = run_episode(env, policy, seed, on_step=keep_first_views)
         episode = {
-            "seed": seed,
-            "success": record.success,
-            "reached": record.reached,
-            "collided": record.collided,
-            "steps": record.steps,
+            **record.outcome(),
             "tip_path_m": round(record.tip_path_m, 4),
             "seconds": round(time.perf_counter() - start, 3),
         }

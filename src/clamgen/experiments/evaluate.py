@@ -42,6 +42,17 @@ class EpisodeRecord:
         """The spec's criterion: reached the target with no collision at any step."""
         return self.reached and not self.collided
 
+    def outcome(self) -> dict[str, Any]:
+        """Seed, success, reached, collided and steps, as the videos and the viewer report
+        each episode (JSON-ready)."""
+        return {
+            "seed": self.seed,
+            "success": self.success,
+            "reached": self.reached,
+            "collided": self.collided,
+            "steps": self.steps,
+        }
+
 
 StepHook = Callable[[dict[str, Any], dict[str, Any] | None, bool], None]
 """`hook(obs, info, done)`: called after the reset (info None) and after every step."""

@@ -161,15 +161,7 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         for _ in range(HOLD_FINAL_FRAMES):
             writer.append_data(final)
         gif_frames += [final] * (HOLD_FINAL_FRAMES // 2)
-        episodes.append(
-            {
-                "seed": seed,
-                "success": record.success,
-                "reached": record.reached,
-                "collided": record.collided,
-                "steps": record.steps,
-            }
-        )
+        episodes.append(record.outcome())
         bar.update(1)
         bar.set_postfix(success=f"{np.mean([e['success'] for e in episodes]):.2f}")
     bar.close()

@@ -333,15 +333,7 @@ def view(config: ViewConfig, policy, label: str, env_kwargs: dict | None = None)
             except _Restart:
                 print(f"episode {episode} (seed {seed}): restarted", flush=True)
                 continue
-            episodes.append(
-                {
-                    "seed": seed,
-                    "success": record.success,
-                    "reached": record.reached,
-                    "collided": record.collided,
-                    "steps": record.steps,
-                }
-            )
+            episodes.append(record.outcome())
             print(
                 f"episode {episode} (seed {seed}): {'success' if record.success else 'failure'}"
                 f" in {record.steps} steps, collision: {record.collided}",
