@@ -16,6 +16,7 @@ import pytest
 from clamgen import cli
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import load_preset
+from clamgen.experiments.policies import policy_label
 from clamgen.experiments.video import RenderConfig, output_stem
 from clamgen.sim.scene import Obstacles
 from clamgen.tasks.reach import Task
@@ -221,10 +222,10 @@ def test_eval_rrt_without_ompl_says_what_to_install(workdir, monkeypatch):
 
 
 def test_output_names_come_from_the_policy(workdir):
-    assert cli.output_label("residual-2views") == "residual-2views"
-    assert cli.output_label(Path("runs/joint-seed3/policy.pt")) == "joint-seed3"
-    assert cli.output_label(Path("sweep/clamgen-2views/seed1/policy.pt")) == "clamgen-2views_seed1"
-    assert cli.output_label(Path("exports/best.pt")) == "best"
+    assert policy_label("residual-2views") == "residual-2views"
+    assert policy_label(Path("runs/joint-seed3/policy.pt")) == "joint-seed3"
+    assert policy_label(Path("sweep/clamgen-2views/seed1/policy.pt")) == "clamgen-2views_seed1"
+    assert policy_label(Path("exports/best.pt")) == "best"
     assert output_stem(RenderConfig(policy="ik"), "ik") == Path("runs/videos/ik")
 
 

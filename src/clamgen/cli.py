@@ -7,7 +7,6 @@ import dataclasses
 import functools
 import importlib
 import json
-import re
 import sys
 import tempfile
 import time
@@ -22,7 +21,7 @@ import numpy as np
 import tyro
 
 from clamgen.envs import ENV_IDS
-from clamgen.experiments.policies import BASELINES, SHIPPED_POLICIES, PolicyName
+from clamgen.experiments.policies import BASELINES, SHIPPED_POLICIES, PolicyName, policy_label
 
 DESCRIPTION = "CLAMGen: closed-loop UR5 arm motion generation via multi-view vision-based RL."
 # Training presets shipped in clamgen/presets/, by name (`--preset NAME`).
@@ -214,19 +213,6 @@ def _check_policy(name: str | Path) -> None:
     )
 
 
-def output_label(name: str | Path) -> str:
-    """The policy's name in default output file names: a shipped policy's or baseline's own
-    name; for a run's policy file (RUN_DIR/policy.pt) the run directory's name, with its
-    parent's for a seed directory (sweeps: ROW/seed0/policy.pt -> ROW_seed0); else the stem."""
-    if name in (*SHIPPED_POLICIES, *BASELINES):
-        return str(name)
-    path = Path(name).absolute()
-    if path.name != "policy.pt":
-        return path.stem
-    run = path.parent
-    return f"{run.parent.name}_{run.name}" if re.fullmatch(r"seed\d+", run.name) else run.name
-
-
 def _refuse_to_overwrite(stem: Path, suffixes: tuple[str, ...], overwrite: bool) -> None:
     """A FileExistsError when an output `stem` + suffix exists and `overwrite` is False."""
     existing = [stem.with_suffix(s) for s in suffixes if stem.with_suffix(s).exists()]
@@ -400,7 +386,7 @@ def evaluate_table(config: EvalConfig) -> list:
         _check_policy(config.policy)
     except (ValueError, ImportError) as error:
         raise SystemExit(str(error)) from error
-    label = output_label(config.policy)
+    label = policy_label(config.policy)
     env_id = _policy_env_id(config.policy)
     out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
     if env_id in ENV_IDS:  # (another env's results are named after it, and checked there)
@@ -495,7 +481,7 @@ def render(config) -> dict:
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.video import output_stem, render_env_rollouts, render_rollouts
 
-    label = output_label(config.policy)
+    label = policy_label(config.policy)
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
@@ -631,7 +617,6 @@ def export_scene(config: ExportSceneConfig) -> Path:
 def view(config) -> dict:
     """Watch a policy act live on seeded tasks in MuJoCo's interactive viewer."""
     from clamgen.experiments.checkpoint import CheckpointError
-    from clamgen.experiments.policies import policy_label
     from clamgen.experiments.viewer import view as run_viewer
 
     env_id = _policy_env_id(config.policy)

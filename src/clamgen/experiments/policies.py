@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Literal
 
@@ -68,5 +69,14 @@ def policy_observation(policy: Policy) -> str:
 
 
 def policy_label(name: str | Path) -> str:
-    """A short name for file names: the baseline or shipped name, else the file's stem."""
-    return name if name in (*BASELINES, *SHIPPED_POLICIES) else Path(name).stem
+    """The policy's name in default output file names and captions: a shipped policy's or
+    baseline's own name; for a run's policy file (RUN_DIR/policy.pt) the run directory's name,
+    with its parent's for a seed directory (sweeps: ROW/seed0/policy.pt -> ROW_seed0); else
+    the file's stem."""
+    if name in (*SHIPPED_POLICIES, *BASELINES):
+        return str(name)
+    path = Path(name).absolute()
+    if path.name != "policy.pt":
+        return path.stem
+    run = path.parent
+    return f"{run.parent.name}_{run.name}" if re.fullmatch(r"seed\d+", run.name) else run.name
