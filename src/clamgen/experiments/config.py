@@ -185,9 +185,23 @@ class LoopConfig:
     little at these sizes."""
     stop_at_success: float | None = None
     """Stop early once a periodic evaluation reaches this success rate (None: never)."""
+    teacher_fraction: float = 0.0
+    """Beyond the paper: the probability, at the start of training, that a training episode is
+    driven by the RRT planner with the full scene model (`clamgen.baselines.rrt.RRTPolicy`)
+    instead of the agent. Its transitions go into the replay like any other (demonstrations for
+    the off-policy learner); evaluation always uses the agent. 0: never (the paper)."""
+    teacher_until: float = 1.0
+    """Fraction of training at which the teacher's probability has decreased linearly from
+    `teacher_fraction` to 0 (afterwards the agent drives every episode)."""
 
     def __post_init__(self) -> None:
         _require_int("loop.total_env_steps", self.total_env_steps, 1)
+        if not (_is_number(self.teacher_fraction) and 0 <= self.teacher_fraction <= 1):
+            raise ValueError(
+                f"loop.teacher_fraction must be in [0, 1], got {self.teacher_fraction}"
+            )
+        if not (_is_number(self.teacher_until) and 0 < self.teacher_until <= 1):
+            raise ValueError(f"loop.teacher_until must be in (0, 1], got {self.teacher_until}")
         _require_int("loop.learning_starts", self.learning_starts, 0)
         # `not x >= 0` also refuses NaN, which every comparison calls False.
         if not (_is_number(self.updates_per_step) and 0 <= self.updates_per_step < np.inf):
@@ -202,6 +216,11 @@ class LoopConfig:
         if target is not None and not (_is_number(target) and 0 <= target <= 1):
             raise ValueError(f"loop.stop_at_success must be in [0, 1] or None, got {target}")
         check_training_seed(self.seed)  # never a validation or test seed
+
+    def teacher_probability(self, progress: float) -> float:
+        """Probability that an episode starting at `progress` (fraction of the budget done) is
+        driven by the teacher."""
+        return self.teacher_fraction * max(0.0, 1.0 - progress / self.teacher_until)
 
 
 @dataclass(frozen=True)

@@ -56,6 +56,9 @@ from clamgen.tasks.reach import Task
 POLICY_NAME = "policy.pt"
 # Successes of the last this many training episodes feed the progress bar's rate.
 RECENT_EPISODES = 100
+# Stream of the loop seed's generator that decides which episodes the teacher drives (apart
+# from the replay-sampling stream, so that a run without a teacher draws exactly as before).
+TEACHER_STREAM = 7
 
 
 def make_env(config: EnvConfig) -> gym.Env:
@@ -133,6 +136,8 @@ class Progress:
     updates_owed: float = 0.0
     wall_time_s: float = 0.0
     best_eval_success: float = -1.0
+    teacher_episodes: int = 0
+    """Training episodes driven by the teacher (`loop.teacher_fraction`)."""
     last_eval: dict[str, float] = dataclasses.field(default_factory=dict)
     """The latest evaluation summary, so that a resume at the end does not evaluate again."""
 
@@ -209,6 +214,12 @@ class Trainer:
             self.buffer, self.stage.hindsight, probe.unwrapped.compute_reward, rerender=rerender
         )
         self.rng = np.random.default_rng(loop.seed)
+        self.teacher_rng = np.random.default_rng([loop.seed, TEACHER_STREAM])
+        # The teacher driving each env's current episode (None: the agent drives it).
+        self.teachers: list[Any] = [None] * len(self.envs)
+        self._teacher_policies = (
+            [_make_teacher() for _ in self.envs] if loop.teacher_fraction > 0 else None
+        )
         self.progress = Progress()
         self.recent_successes: deque[bool] = deque(maxlen=RECENT_EPISODES)
         self.obs: list[dict[str, np.ndarray]] = []
@@ -270,6 +281,7 @@ class Trainer:
             obs, _ = env.reset(seed=self.config.loop.seed * 1000 + i)
             self.obs.append(obs)
             self.recorders.append(EpisodeRecorder(obs))
+            self._choose_driver(i)
         self._apply_curriculum()
         return False
 
@@ -372,19 +384,41 @@ class Trainer:
         else:
             batch = {key: np.stack([o[key] for o in self.obs]) for key in self.obs[0]}
             actions = self.agent.act(batch)
+        for i, teacher in enumerate(self.teachers):
+            if teacher is not None:
+                actions[i] = teacher.act(self.obs[i])
         for i, env in enumerate(self.envs):
             obs, _, terminated, truncated, info = env.step(actions[i])
             self.recorders[i].add(actions[i], obs, info)
             if terminated or truncated:
                 episode = self.recorders[i].episode()
                 self.pipeline.store(episode, _obstacles(env))
-                self.recent_successes.append(not episode.failed)
+                if self.teachers[i] is None:  # the rollout success rate is the agent's
+                    self.recent_successes.append(not episode.failed)
+                else:
+                    self.progress.teacher_episodes += 1
                 self.progress.episodes += 1
                 obs, _ = env.reset()
                 self.recorders[i] = EpisodeRecorder(obs)
+                self.obs[i] = obs  # the teacher plans from the new episode's start
+                self._choose_driver(i)
             self.obs[i] = obs
         self.progress.env_steps += num_envs
         self._apply_curriculum()
+
+    def _choose_driver(self, i: int) -> None:
+        """Decide who drives env i's new episode: the teacher with `loop.teacher_probability`
+        (when it finds a plan), otherwise the agent."""
+        self.teachers[i] = None
+        if self._teacher_policies is None:
+            return
+        progress = self.progress.env_steps / self.config.loop.total_env_steps
+        if self.teacher_rng.random() >= self.config.loop.teacher_probability(progress):
+            return
+        teacher = self._teacher_policies[i]
+        teacher.reset(self.envs[i])
+        if teacher.last_plan_succeeded:
+            self.teachers[i] = teacher
 
     def _apply_curriculum(self) -> None:
         progress = self.progress.env_steps / self.config.loop.total_env_steps
@@ -415,6 +449,8 @@ class Trainer:
             "rollout/env_steps_per_s": self.progress.env_steps / wall,
             "rollout/replay_transitions": float(len(self.buffer)),
         }
+        if self._teacher_policies is not None:
+            metrics["rollout/teacher_episodes"] = float(self.progress.teacher_episodes)
         if self.recent_successes:
             metrics["rollout/success_rate"] = float(np.mean(self.recent_successes))
         return metrics | self.pipeline.metrics()
@@ -451,6 +487,7 @@ class Trainer:
             "agent": self.agent.state_dict(),
             "progress": dataclasses.asdict(self.progress),
             "rng": json.dumps(self.rng.bit_generator.state),
+            "teacher_rng": json.dumps(self.teacher_rng.bit_generator.state),
             "recent_successes": [bool(s) for s in self.recent_successes],
         }
         self.checkpoints.save(payload, arrays, self.buffer)
@@ -471,6 +508,9 @@ class Trainer:
         self.progress = Progress(**payload["progress"])
         self.resumed_from_step = self.progress.env_steps
         self.rng.bit_generator.state = json.loads(payload["rng"])
+        if "teacher_rng" in payload:
+            self.teacher_rng.bit_generator.state = json.loads(payload["teacher_rng"])
+        # Episodes in progress continue under the agent (a teacher's plan is not saved).
         self.recent_successes.extend(payload["recent_successes"])
         self.obs, self.recorders = [], []
         for i, env in enumerate(self.envs):
@@ -520,6 +560,14 @@ def load_policy_agent(path: Path, payload: dict | None = None) -> tuple[SACAgent
     except (RuntimeError, KeyError) as error:
         raise ckpt.CheckpointError(f"{path} does not match its own config: {error}") from error
     return agent, config
+
+
+def _make_teacher() -> Any:
+    """The RRT planner with the full scene model (needs OMPL: a one-line error otherwise)."""
+    from clamgen.baselines.rrt import RRTPolicy, _ompl
+
+    _ompl()
+    return RRTPolicy()
 
 
 def _obstacles(env: gym.Env) -> Any:
