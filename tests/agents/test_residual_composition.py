@@ -194,3 +194,27 @@ def test_shipped_policies_act_as_before_the_rebuild(name):
     np.testing.assert_allclose(
         agent.act(obs, deterministic=True), recorded[f"{name}/action"], atol=2e-5
     )
+
+
+def test_behaviour_cloning_pulls_the_mean_action_towards_the_demonstrations():
+    data = batch(obstacles=True)
+    demo = np.zeros(8, np.float32)
+    demo[:4] = 1.0  # half the batch are a teacher's transitions
+    data["demonstration"] = demo
+    cfg = config(obs_source="obstacles", warmup_updates=0)
+
+    def distance(agent):
+        action = agent.act(data["obs"], deterministic=True)
+        return float(np.square(action - data["action"])[:4].sum(-1).mean())
+
+    cloning = ResidualAgent(dataclasses.replace(cfg, bc_weight=100.0), base_agent())
+    plain = ResidualAgent(cfg, base_agent())
+    start = distance(cloning)
+    for _ in range(150):
+        metrics = cloning.update(data)
+        assert "train/bc_loss" not in plain.update(data)
+    assert metrics["train/bc_fraction"] == 0.5
+    assert distance(cloning) < 0.5 * start
+    assert distance(cloning) < distance(plain)
+    with pytest.raises(ValueError, match="agent.bc_weight"):
+        config(bc_weight=-1.0)

@@ -139,6 +139,12 @@ class ResidualConfig:
     """Visual features the target critic reads for s': "target", its own Polyak-averaged copy
     of the encoder (CURL, SAC-AE, the paper); "online", the online encoder's no-grad features,
     as DrQ-v2 does (one conv pass fewer per update)."""
+    bc_weight: float = 0.0
+    """Beyond the paper: weight of a behaviour-cloning term in the actor loss, the squared
+    distance between the policy's mean action and the action of the replay's demonstration
+    transitions (a teacher's episodes, `loop.teacher_fraction`), as in Nair et al. 2018. The
+    critic's Q values are ~100x the reward (`reward_scale`), so weights of 1-100 matter.
+    0: no such term (the paper)."""
     seed: int = 0
     """Seed of the initialisation and of the agent's own sampling."""
     device: str = "cpu"
@@ -146,6 +152,8 @@ class ResidualConfig:
 
     def __post_init__(self) -> None:
         check_sac_settings(self)
+        if not (isinstance(self.bc_weight, int | float) and 0 <= self.bc_weight < np.inf):
+            raise ValueError(f"agent.bc_weight must be a finite number >= 0, got {self.bc_weight}")
         for name, low in (("crop_padding", 0), ("warmup_updates", 0), ("obstacle_feature_dim", 1)):
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
@@ -270,6 +278,7 @@ class _TrainInputs:
     reward: torch.Tensor  # (B,)
     done: torch.Tensor  # (B,)
     collided: torch.Tensor  # (B,)
+    demonstration: torch.Tensor  # (B,) 1 for a teacher's transitions
     view_mask: torch.Tensor | None  # (B, V) bool, True = view kept
 
 
@@ -506,6 +515,11 @@ class ResidualAgent:
             reward=tensor("reward"),
             done=tensor("done"),
             collided=tensor("collision"),
+            demonstration=(
+                tensor("demonstration")
+                if "demonstration" in batch
+                else torch.zeros(len(batch["action"]), device=device)
+            ),
             view_mask=self._view_mask(len(batch["action"])),
         )
 
@@ -667,8 +681,10 @@ class ResidualAgent:
         alpha = self.log_alpha.detach().exp()
         warming_up = self.num_updates < self._warmup_updates
         low_dim = self._critic_view(x.state)
+        metrics = {}
         with _frozen(self.critic, self.base_critic):
-            action, log_prob = self._sample(visual, self._actor_view(x.state))
+            mean, log_std = self._pre_squash(visual, self._actor_view(x.state))
+            action, log_prob = tanh_gaussian_sample(mean, log_std, self._generator)
             if warming_up:
                 # Paper: during warm-up, maximise Q_base - alpha log pi to clone the base policy.
                 q = self.base_critic(low_dim, action)
@@ -676,6 +692,11 @@ class ResidualAgent:
                 q = self._q(self.critic, self.base_critic, latent, low_dim, action)
             actor_loss = (alpha * log_prob - q.min(0).values).mean()
             actor_value = self._finite("train/actor_loss", actor_loss)
+            if self.config.bc_weight > 0:
+                bc_loss = _demonstration_mse(torch.tanh(mean), x.action, x.demonstration)
+                actor_loss = actor_loss + self.config.bc_weight * bc_loss
+                metrics["train/bc_loss"] = bc_loss.item()
+                metrics["train/bc_fraction"] = x.demonstration.mean().item()
             self.actor_optim.zero_grad(set_to_none=True)
             actor_loss.backward()
             self.actor_optim.step()
@@ -683,7 +704,7 @@ class ResidualAgent:
         self.alpha_optim.zero_grad(set_to_none=True)
         alpha_loss.backward()
         self.alpha_optim.step()
-        return {
+        return metrics | {
             "train/actor_loss": actor_value,
             "train/alpha": alpha.item(),
             "train/entropy": -log_prob.detach().mean().item(),
@@ -743,6 +764,13 @@ def _adam(params: list, lr: float, device: torch.device) -> torch.optim.Adam:
     """Adam, fused into one kernel per step where torch has one (CPU, CUDA): the same update,
     measured 6x faster than the per-parameter loop for the critic's parameters here."""
     return torch.optim.Adam(params, lr=lr, fused=device.type in ("cpu", "cuda"))
+
+
+def _demonstration_mse(mean_action, action, demonstration) -> torch.Tensor:
+    """Squared distance (summed over joints) of the policy's mean action to the recorded
+    action, averaged over the demonstration transitions (0 when the batch has none)."""
+    squared = (mean_action - action).square().sum(-1)
+    return (squared * demonstration).sum() / demonstration.sum().clamp(min=1.0)
 
 
 def _identity(x):

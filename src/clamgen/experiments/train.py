@@ -392,6 +392,8 @@ class Trainer:
             self.recorders[i].add(actions[i], obs, info)
             if terminated or truncated:
                 episode = self.recorders[i].episode()
+                if self.teachers[i] is not None:
+                    episode = dataclasses.replace(episode, demonstration=True)
                 self.pipeline.store(episode, _obstacles(env))
                 if self.teachers[i] is None:  # the rollout success rate is the agent's
                     self.recent_successes.append(not episode.failed)

@@ -34,8 +34,9 @@ ObsSpec = Mapping[str, tuple[tuple[int, ...], np.dtype]]
 """Shape (without the batch dim) and dtype of each stored observation key."""
 
 # Per-slot bookkeeping besides observations and the action: collision flag (bool), index of the
-# episode's first and last slot (2 x int64), and whether the slot starts a transition (bool).
-_BOOKKEEPING_BYTES_PER_SLOT = 1 + 8 + 8 + 1
+# episode's first and last slot (2 x int64), whether the slot starts a transition (bool), and
+# whether it belongs to a teacher's demonstration (bool).
+_BOOKKEEPING_BYTES_PER_SLOT = 1 + 8 + 8 + 1 + 1
 _NO_EPISODE = -1
 # Checkpoints save the arrays in blocks of consecutive slots of about this size, and only the
 # blocks changed since the previous checkpoint (`changed_blocks`); big enough that a 100k-slot
@@ -149,6 +150,7 @@ class ReplayBuffer:
         }
         self._action = np.zeros((capacity, action_dim), np.float32)
         self._collision = np.zeros(capacity, bool)
+        self._demonstration = np.zeros(capacity, bool)
         self._first = np.full(capacity, _NO_EPISODE, np.int64)
         self._last = np.full(capacity, _NO_EPISODE, np.int64)
         self._starts_transition = np.zeros(capacity, bool)
@@ -177,7 +179,8 @@ class ReplayBuffer:
     def nbytes(self) -> int:
         """Bytes held by the buffer's arrays."""
         arrays = [*self._obs.values(), self._action, self._collision, self._first, self._last]
-        return sum(a.nbytes for a in arrays) + self._starts_transition.nbytes
+        flags = self._starts_transition.nbytes + self._demonstration.nbytes
+        return sum(a.nbytes for a in arrays) + flags
 
     def add_episode(self, episode: Episode) -> int:
         """Store one episode as it is (relabelling is the pipeline's job,
@@ -201,6 +204,7 @@ class ReplayBuffer:
             array[start:stop] = episode.obs[key]
         self._action[start : stop - 1] = episode.actions
         self._collision[start : stop - 1] = episode.collisions
+        self._demonstration[start:stop] = episode.demonstration
         self._first[start:stop] = start
         self._last[start:stop] = stop - 1
         self._starts_transition[start : stop - 1] = True
@@ -295,10 +299,13 @@ class ReplayBuffer:
             "first": self._first[start:stop],
             "last": self._last[start:stop],
             "starts_transition": self._starts_transition[start:stop],
+            "demonstration": self._demonstration[start:stop],
         }
 
     def _load_slots(self, start: int, arrays: Mapping[str, np.ndarray], stop: int) -> None:
         targets = self._slot_arrays(start, stop)
+        if "demonstration" not in arrays:  # saved before teachers existed: none were
+            arrays = {**arrays, "demonstration": np.zeros(stop - start, bool)}
         if set(arrays) != set(targets):
             raise ValueError(
                 f"saved replay arrays {sorted(arrays)} differ from this buffer's {sorted(targets)}"
@@ -349,6 +356,7 @@ class ReplayBuffer:
             next_obs=next_obs,
             done=done,
             collision=self._collision[slots].astype(np.float32),
+            demonstration=self._demonstration[slots].astype(np.float32),
         )
 
     def episode_bounds(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

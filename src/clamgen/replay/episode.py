@@ -43,6 +43,9 @@ class Batch(TypedDict):
     collision: np.ndarray
     """Whether the transition reported a collision, (N,) float32 in {0, 1} (the target of the
     stage-2 collision-prediction loss)."""
+    demonstration: np.ndarray
+    """Whether the transition comes from a teacher's episode, (N,) float32 in {0, 1} (the
+    transitions a behaviour-cloning term imitates)."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,8 @@ class Episode:
     """Whether step t reported a collision, (T,) bool."""
     successes: np.ndarray
     """Whether step t reached the desired goal, (T,) bool."""
+    demonstration: bool = False
+    """Whether a teacher (not the agent) chose the actions (`loop.teacher_fraction`)."""
 
     def __post_init__(self) -> None:
         num_steps = len(self.actions)

@@ -137,6 +137,7 @@ def transitions(
         next_obs=next_obs,
         done=done,
         collision=episode.collisions[steps].astype(np.float32),
+        demonstration=np.full(len(steps), float(episode.demonstration), np.float32),
     )
 
 

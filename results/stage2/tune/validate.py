@@ -1,0 +1,69 @@
+"""Score training runs on validation tasks (never test tasks) to choose a recipe.
+
+    python results/stage2/tune/validate.py runs/tune/priv-early/policy.pt ... --num-tasks 100
+
+Each policy runs on `--num-tasks` blocked-path and standard obstacle tasks with validation seeds
+(VALIDATION_SEEDS.start + VALIDATION_OFFSET + i: past the 50 that training's periodic
+evaluation uses). Prints one line per policy and family and appends them to validation.jsonl.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import VALIDATION_SEEDS
+from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.policies import load_policy, policy_label
+from clamgen.experiments.tables import wilson_interval
+
+VALIDATION_OFFSET = 10_000
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("policies", nargs="+")
+    parser.add_argument("--num-tasks", type=int, default=100)
+    parser.add_argument("--families", nargs="+", default=["blocked", "obstacles"])
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + VALIDATION_OFFSET)
+    out = Path(__file__).with_name("validation.jsonl")
+    for name in args.policies:
+        policy, source, env_kwargs = load_policy(name)
+        for family in args.families:
+            tic = time.perf_counter()
+            env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
+            records = evaluate(env, policy, seeds)
+            env.close()
+            success = int(sum(r.success for r in records))
+            low, high = wilson_interval(success, len(records))
+            row = {
+                "policy": policy_label(name),
+                "source": source,
+                "family": family,
+                "num_tasks": len(records),
+                "first_seed": int(seeds[0]),
+                "success": success / len(records),
+                "ci95": [low, high],
+                "collision": float(np.mean([r.collided for r in records])),
+                "seconds": time.perf_counter() - tic,
+            }
+            print(
+                f"{row['policy']:28s} {family:9s} success {row['success']:.3f} "
+                f"[{low:.2f}, {high:.2f}] collision {row['collision']:.3f} "
+                f"({row['seconds']:.0f} s)",
+                flush=True,
+            )
+            with out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()
