@@ -31,12 +31,17 @@ def main() -> None:
     parser.add_argument("policies", nargs="+")
     parser.add_argument("--num-tasks", type=int, default=100)
     parser.add_argument("--families", nargs="+", default=["blocked", "obstacles"])
+    parser.add_argument(
+        "--stochastic", action="store_true", help="sample actions instead of the mean"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + VALIDATION_OFFSET)
     out = Path(__file__).with_name("validation.jsonl")
     for name in args.policies:
         policy, source, env_kwargs = load_policy(name)
+        if args.stochastic:
+            policy.deterministic = False
         for family in args.families:
             tic = time.perf_counter()
             env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
@@ -45,7 +50,7 @@ def main() -> None:
             success = int(sum(r.success for r in records))
             low, high = wilson_interval(success, len(records))
             row = {
-                "policy": policy_label(name),
+                "policy": policy_label(name) + (" (stochastic)" if args.stochastic else ""),
                 "source": source,
                 "family": family,
                 "num_tasks": len(records),
