@@ -315,7 +315,8 @@ class EvalConfig:
     """1: static and moving targets, no obstacles; 2: static targets past two obstacles, on the
     standard obstacle tasks and on the blocked-path tasks."""
     policy: PolicyName | Path = "base"
-    """A policy shipped with the package (`base`, `residual-2views`, `image-only`), a baseline
+    """A policy shipped with the package (`base`; the vision residuals `residual-3views`,
+    `residual-2views`, `residual-1view`; `image-only`), a baseline
     (`ik`: IK interpolation, `rrt`: RRT-Connect with the full scene model), or a policy file
     written by `clamgen train` / `clamgen train-residual` (`RUN_DIR/policy.pt`)."""
     num_tasks: int = 200

@@ -209,3 +209,19 @@ def test_encoder_pretraining_reads_the_state_and_hands_the_encoder_to_rl(tmp_pat
             ),
             env=dataclasses.replace(config.env, include_obstacle_state=True),
         )
+
+
+@pytest.mark.parametrize(
+    ("name", "views"), [("residual-3views", 3), ("residual-2views", 2), ("residual-1view", 1)]
+)
+def test_shipped_vision_policies_load_by_name_and_act_from_their_views(name, views):
+    from clamgen.envs import ReachEnv
+    from clamgen.experiments.policies import load_policy
+
+    policy, source, env_kwargs = load_policy(name)
+    assert env_kwargs["num_views"] == views and name in source
+    env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
+    obs, _ = env.reset(seed=2_000_000_123)
+    action = policy.act(obs)
+    env.close()
+    assert action.shape == (6,) and np.all(np.abs(action) <= 1)

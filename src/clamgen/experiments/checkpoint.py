@@ -44,7 +44,9 @@ import torch
 # Policies shipped inside the package (clamgen/checkpoints/), by name.
 SHIPPED_POLICIES = {
     "base": "base.pt",
+    "residual-3views": "residual-3views.pt",
     "residual-2views": "residual-2views.pt",
+    "residual-1view": "residual-1view.pt",
     "image-only": "image-only.pt",
 }
 

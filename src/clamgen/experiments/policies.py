@@ -11,7 +11,9 @@ from clamgen.policy import Policy
 
 BASELINES = ("ik", "rrt")
 # The names above, as a type: command-line options typed `PolicyName | Path` list them.
-PolicyName = Literal["base", "residual-2views", "image-only", "ik", "rrt"]
+PolicyName = Literal[
+    "base", "residual-3views", "residual-2views", "residual-1view", "image-only", "ik", "rrt"
+]
 
 __all__ = [
     "BASELINES",
