@@ -207,7 +207,10 @@ def test_train_residual_refuses_a_wrong_base_policy(workdir, base, expected):
 def test_eval_and_render_list_the_valid_policies(workdir):
     for command in ("eval", "render"):
         message = refused(workdir, command, "--policy", "nosuch")
-        assert "--policy 'nosuch' not found; choose one of base, residual-3views, residual-2views, residual-1view, " in message
+        assert (
+            "--policy 'nosuch' not found; choose one of base, residual-3views, "
+            "residual-2views, residual-1view, " in message
+        )
         assert "image-only, ik, rrt, or the path of a policy file" in message
     (workdir / "run").mkdir()
     message = refused(workdir, "eval", "--policy", "run")

@@ -216,5 +216,5 @@ def test_behaviour_cloning_pulls_the_mean_action_towards_the_demonstrations():
     assert metrics["train/bc_fraction"] == 0.5
     assert distance(cloning) < 0.5 * start
     assert distance(cloning) < distance(plain)
-    with pytest.raises(ValueError, match="agent.bc_weight"):
+    with pytest.raises(ValueError, match=r"agent\.bc_weight"):
         config(bc_weight=-1.0)
