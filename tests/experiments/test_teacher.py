@@ -1,33 +1,20 @@
 """The RRT teacher (`loop.teacher_fraction`): which episodes it drives, what they store."""
 
-import pytest
+import dataclasses
 
-from clamgen.agents.sac import SACConfig
-from clamgen.experiments.config import EnvConfig, LoopConfig, TrainConfig
+import pytest
+from test_train import tiny_config
+
+from clamgen.experiments.config import EnvConfig, LoopConfig
 from clamgen.experiments.train import Trainer
-from clamgen.replay import ReplayConfig
 
 pytest.importorskip("ompl")
 
 
 def obstacle_config(run_dir, **loop):
     """A few blocked-path episodes, random actions whenever the teacher is not driving."""
-    loop_config = LoopConfig(
-        total_env_steps=160,
-        learning_starts=400,
-        eval_every_steps=0,
-        checkpoint_every_steps=0,
-        log_every_steps=40,
-        seed=3,
-        **loop,
-    )
-    return TrainConfig(
-        run_dir=run_dir,
-        env=EnvConfig(env_id="CLAMGen/ReachBlocked-v0", num_envs=2),
-        agent=SACConfig(hidden_sizes=(32, 32), batch_size=32),
-        replay=ReplayConfig(capacity=5_000),
-        loop=loop_config,
-    )
+    config = tiny_config(run_dir, total=160, learning_starts=400, **loop)
+    return dataclasses.replace(config, env=EnvConfig(env_id="CLAMGen/ReachBlocked-v0", num_envs=2))
 
 
 def test_teacher_probability_decreases_linearly_to_zero():

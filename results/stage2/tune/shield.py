@@ -13,14 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from validate import VALIDATION_OFFSET  # the same tasks as validate.py
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.stage2 import load_residual_agent
-
-VALIDATION_OFFSET = 10_000  # the same tasks as validate.py
 
 
 class Shield:

@@ -402,8 +402,7 @@ class Trainer:
                 self.progress.episodes += 1
                 obs, _ = env.reset()
                 self.recorders[i] = EpisodeRecorder(obs)
-                self.obs[i] = obs  # the teacher plans from the new episode's start
-                self._choose_driver(i)
+                self._choose_driver(i)  # the teacher plans from the env's new task
             self.obs[i] = obs
         self.progress.env_steps += num_envs
         self._apply_curriculum()

@@ -166,8 +166,7 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         bar.set_postfix(success=f"{np.mean([e['success'] for e in episodes]):.2f}")
     bar.close()
     writer.close()
-    scaled = [_scale(f, config.gif_scale) for f in gif_frames]
-    imageio.mimsave(gif_path, scaled, duration=2 / config.fps, loop=0)
+    _save_gif(gif_path, gif_frames, config)
     renderer.close()
     env.close()
     summary = {
@@ -210,6 +209,12 @@ class _EpisodeFilm:
             self.writer.append_data(frame)
             if steps % 2 == 0:
                 self.gif_frames.append(frame)
+
+
+def _save_gif(path: Path, frames: list[np.ndarray], config: RenderConfig) -> None:
+    """The GIF of every other frame: scaled by `gif_scale`, at half the video's frame rate."""
+    scaled = [_scale(f, config.gif_scale) for f in frames]
+    imageio.mimsave(path, scaled, duration=2 / config.fps, loop=0)
 
 
 def _scale(frame: np.ndarray, scale: float) -> np.ndarray:
@@ -258,8 +263,7 @@ def render_env_rollouts(config: RenderConfig, policy, label: str, env_id: str) -
                 episode["collided"] = record.collided
             episodes.append(episode)
         writer.close()
-        scaled = [_scale(f, config.gif_scale) for f in gif_frames]
-        imageio.mimsave(gif_path, scaled, duration=2 / config.fps, loop=0)
+        _save_gif(gif_path, gif_frames, config)
     finally:
         env.close()
     summary = {
