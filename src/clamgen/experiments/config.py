@@ -109,6 +109,10 @@ def _require_int(name: str, value: object, low: int, high: int | None = None) ->
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
 
 
+# A training clearance beyond this (m) would reject most obstacle tasks' starts and goals.
+MAX_TRAINING_COLLISION_MARGIN_M = 0.1
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Which environment to train in, and how many copies step in lockstep."""
@@ -129,9 +133,19 @@ class EnvConfig:
     """Collision penalty over training progress (paper: LinearRamp(0.3, 0.9, 0.0, 0.1))."""
     include_obstacle_state: bool = False
     """Add the obstacles' true poses to observations (for the privileged residual)."""
+    training_collision_margin_m: float = 0.0
+    """Beyond the paper: the training envs count contacts closer than this (m) as collisions, so
+    the arm stops short of them and the step is penalised, and the policy learns to keep this
+    clearance. Periodic validation and every table use true contact (0). 0: the paper."""
 
     def __post_init__(self) -> None:
         _require_int("env.num_envs", self.num_envs, 1)
+        margin = self.training_collision_margin_m
+        if not (_is_number(margin) and 0 <= margin <= MAX_TRAINING_COLLISION_MARGIN_M):
+            raise ValueError(
+                "env.training_collision_margin_m must be a number in "
+                f"[0, {MAX_TRAINING_COLLISION_MARGIN_M}] (metres), got {margin!r}"
+            )
         _require_int("env.num_views", self.num_views, 0, NUM_CAMERAS)
         _require_int("env.image_size", self.image_size, 8, MAX_IMAGE_SIZE)
         if self.obs_mode not in OBS_MODES:

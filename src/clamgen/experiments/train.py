@@ -61,13 +61,16 @@ RECENT_EPISODES = 100
 TEACHER_STREAM = 7
 
 
-def make_env(config: EnvConfig) -> gym.Env:
-    """A training or evaluation env. CLAMGen ids are built bare (their own 100-step truncation,
-    no wrappers) so their full state can be checkpointed; other ids go through `gym.make`."""
+def make_env(config: EnvConfig, training: bool = False) -> gym.Env:
+    """A training (`training`: with `config.training_collision_margin_m`) or evaluation env.
+    CLAMGen ids are built bare (their own 100-step truncation, no wrappers) so their full state
+    can be checkpointed; other ids go through `gym.make`."""
     if config.env_id in ENV_IDS:
         spec = gym.spec(config.env_id)
         kwargs = {**spec.kwargs, **config.make_kwargs()}
         kwargs["max_episode_steps"] = spec.max_episode_steps
+        if training:
+            kwargs["collision_margin_m"] = config.training_collision_margin_m
         return ReachEnv(**kwargs)
     return gym.make(config.env_id)
 
@@ -197,7 +200,7 @@ class Trainer:
         self.run_dir = Path(config.run_dir)
         self.checkpoint_dir = self.run_dir / "checkpoints"
         self.checkpoints = ckpt.CheckpointStore(self.checkpoint_dir)
-        self.envs = [make_env(config.env) for _ in range(config.env.num_envs)]
+        self.envs = [make_env(config.env, training=True) for _ in range(config.env.num_envs)]
         self.eval_env = make_env(config.env)
         probe = self.envs[0]
         # The loop seed seeds everything, the agent included.
