@@ -59,10 +59,15 @@ class PathExpert:
     """Follows an RRTConnect path planned with a clearance margin; plans again when off it."""
 
     def __init__(
-        self, margin_m: float, return_to_path: bool, config: RRTConfig | None = None
+        self,
+        margin_m: float,
+        return_to_path: bool,
+        straight_when_clear: bool,
+        config: RRTConfig | None = None,
     ) -> None:
         self.config = config or RRTConfig()
         self.return_to_path = return_to_path
+        self.straight_when_clear = straight_when_clear
         self.scenes = (Scene(margin_m), Scene(0.0))  # the true scene if the margin one rejects
         self.path: np.ndarray | None = None
         self.progress = 0
@@ -98,6 +103,13 @@ class PathExpert:
     def label(self, joints: np.ndarray) -> np.ndarray | None:
         """The expert's action (6,) in [-1, 1] at `joints`, or None if it has no path."""
         joints = np.asarray(joints, np.float64)
+        if self.straight_when_clear:
+            candidates = goal_candidates(self.scenes[0], joints, self.goal_m, self.config)
+            if len(candidates) and self._free(joints, candidates[0]):
+                self.path = None  # plan again from wherever the arm is if it is ever needed
+                return np.clip((candidates[0] - joints) / MAX_JOINT_DELTA_RAD, -1, 1).astype(
+                    np.float32
+                )
         if self.path is not None:
             ahead = self.path[self.progress :]
             distance = np.max(np.abs(ahead - joints), axis=1)
@@ -222,13 +234,17 @@ def main() -> None:
         "--return-to-path", action=argparse.BooleanOptionalAction, default=True,
         help="off the path, head straight back to it when that is clear, before planning again",
     )  # fmt: skip
+    parser.add_argument(
+        "--straight-when-clear", action=argparse.BooleanOptionalAction, default=True,
+        help="head straight for the nearest goal solution whenever that motion is clear",
+    )  # fmt: skip
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
     env = gym.make("CLAMGen/ReachMixed-v0", include_obstacle_state=True).unwrapped
-    expert = PathExpert(args.plan_margin_m, args.return_to_path)
+    expert = PathExpert(args.plan_margin_m, args.return_to_path, args.straight_when_clear)
     learner = Learner(len(features(env.reset(seed=0)[0])), args.residual)
     policy = LearnerPolicy(learner, load_policy("base")[0])
     xs: list[np.ndarray] = []
@@ -279,6 +295,7 @@ def main() -> None:
             f.write(json.dumps(entry) + "\n")
         torch.save(learner.state_dict(), args.out / "learner.pt")
     out = Path(__file__).with_name("validation.jsonl")
+    (args.out / "args.json").write_text(json.dumps(vars(args), default=str, indent=2))
     validate(policy, f"distill-priv ({args.out.name})", args.num_tasks, out)
 
 
