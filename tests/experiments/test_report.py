@@ -116,3 +116,22 @@ def test_report_refuses_a_missing_directory(tmp_path):
     tmp_path.mkdir(exist_ok=True)
     with pytest.raises(FileNotFoundError, match="sweep summary not found"):
         build_report(ReportConfig(results_dir=tmp_path, sweep=(tmp_path / "none.json",)))
+
+
+def test_a_run_shared_by_two_sweeps_counts_once(tmp_path):
+    write_results(tmp_path)
+    full, ablation = "CLAMGen, 2 RGBD views", "no HER (2 views)"
+    runs = [sweep_run(full, s, 2, {"obstacles": 0.9 + 0.01 * s}) for s in range(3)]
+    (tmp_path / "sweeps").mkdir()
+    first = {"kind": "clamgen-sweep", "name": "a", "rows": [{"name": full}], "runs": runs}
+    second = {
+        "kind": "clamgen-sweep",
+        "name": "b",
+        "rows": [{"name": full}, {"name": ablation, "compare_to": full}],
+        "runs": runs + [sweep_run(ablation, s, 2, {"obstacles": 0.5}) for s in range(2)],
+    }
+    (tmp_path / "sweeps" / "a.json").write_text(json.dumps(first))
+    (tmp_path / "sweeps" / "b.json").write_text(json.dumps(second))
+    text = build_report(ReportConfig(results_dir=tmp_path, reps=100)).read_text()
+    assert f"| {full} | 3 (0, 1, 2) | 0.910 (" in text
+    assert f"| {ablation} | 2 (0, 1) | 0.500 (" in text

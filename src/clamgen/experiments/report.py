@@ -157,8 +157,11 @@ def _speed_label(speed: Any) -> str:
 
 
 def results_from_sweeps(paths: Iterable[Path]) -> tuple[list[RunResult], dict[str, str]]:
-    """Finished runs of sweep summaries, and the rows' `compare_to` (row -> reference row)."""
+    """Finished runs of sweep summaries, and the rows' `compare_to` (row -> reference row).
+    A row and training seed that two summaries share (a run copied into a second sweep as the
+    row its ablations compare to) counts once, from the first summary."""
     results, comparisons = [], {}
+    seen: set[tuple[str, Any]] = set()
     for path in paths:
         summary = json.loads(path.read_text())
         for row in summary.get("rows", []):
@@ -166,8 +169,9 @@ def results_from_sweeps(paths: Iterable[Path]) -> tuple[list[RunResult], dict[st
                 comparisons[row["name"]] = row["compare_to"]
         for run in summary["runs"]:
             test = run.get("test")
-            if run.get("status") != "done" or not test:
+            if run.get("status") != "done" or not test or (run["row"], run.get("seed")) in seen:
                 continue
+            seen.add((run["row"], run.get("seed")))
             validation = run.get("validation") or {}
             results.append(
                 RunResult(
