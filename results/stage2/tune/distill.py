@@ -30,16 +30,13 @@ import numpy as np
 import torch
 from torch import nn
 from tqdm import trange
-from validate import VALIDATION_OFFSET
+from validate import score
 
 import clamgen.envs  # noqa: F401  (registers the ids)
 from clamgen.baselines.rrt import RRTConfig, goal_candidates, plan_joint_path
-from clamgen.envs import ReachEnv
 from clamgen.envs.reach_env import MAX_JOINT_DELTA_RAD
-from clamgen.experiments.config import TRAINING_SEEDS, VALIDATION_SEEDS
-from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.config import TRAINING_SEEDS
 from clamgen.experiments.policies import load_policy
-from clamgen.experiments.tables import wilson_interval
 from clamgen.sim.scene import Scene
 
 TRAINING_SEED_BASE = 700_000_000  # far from the RL runs' env seeds (loop seed * 1000 + env)
@@ -192,31 +189,6 @@ def fit(learner: Learner, x: np.ndarray, b: np.ndarray, y: np.ndarray, steps: in
     return float(loss.detach())
 
 
-def validate(policy, label: str, num_tasks: int, out: Path) -> dict[str, float]:
-    seeds = VALIDATION_SEEDS.seeds(num_tasks, VALIDATION_SEEDS.start + VALIDATION_OFFSET)
-    scores = {}
-    for family in ("blocked", "obstacles"):
-        env = ReachEnv(num_obstacles=2, task_family=family, include_obstacle_state=True)
-        records = evaluate(env, policy, seeds)
-        success = int(sum(r.success for r in records))
-        low, high = wilson_interval(success, len(records))
-        row = {
-            "policy": label,
-            "family": family,
-            "num_tasks": len(records),
-            "first_seed": int(seeds[0]),
-            "success": success / len(records),
-            "ci95": [low, high],
-            "collision": float(np.mean([r.collided for r in records])),
-        }
-        print(f"{label:28s} {family:9s} success {row['success']:.3f} [{low:.2f}, {high:.2f}] "
-              f"collision {row['collision']:.3f}", flush=True)  # fmt: skip
-        with out.open("a") as f:
-            f.write(json.dumps(row) + "\n")
-        scores[family] = row["success"]
-    return scores
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
@@ -243,7 +215,8 @@ def main() -> None:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
-    env = gym.make("CLAMGen/ReachMixed-v0", include_obstacle_state=True).unwrapped
+    obstacle_kwargs = {"include_obstacle_state": True}
+    env = gym.make("CLAMGen/ReachMixed-v0", **obstacle_kwargs).unwrapped
     expert = PathExpert(args.plan_margin_m, args.return_to_path, args.straight_when_clear)
     learner = Learner(len(features(env.reset(seed=0)[0])), args.residual)
     policy = LearnerPolicy(learner, load_policy("base")[0])
@@ -294,9 +267,8 @@ def main() -> None:
         with log.open("a") as f:
             f.write(json.dumps(entry) + "\n")
         torch.save(learner.state_dict(), args.out / "learner.pt")
-    out = Path(__file__).with_name("validation.jsonl")
     (args.out / "args.json").write_text(json.dumps(vars(args), default=str, indent=2))
-    validate(policy, f"distill-priv ({args.out.name})", args.num_tasks, out)
+    score(policy, f"distill-priv ({args.out.name})", str(args.out), obstacle_kwargs, args.num_tasks)
 
 
 if __name__ == "__main__":

@@ -36,38 +36,48 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + VALIDATION_OFFSET)
-    out = Path(__file__).with_name("validation.jsonl")
     for name in args.policies:
         policy, source, env_kwargs = load_policy(name)
         if args.stochastic:
             policy.deterministic = False
-        for family in args.families:
-            tic = time.perf_counter()
-            env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
-            records = evaluate(env, policy, seeds)
-            env.close()
-            success = int(sum(r.success for r in records))
-            low, high = wilson_interval(success, len(records))
-            row = {
-                "policy": policy_label(name) + (" (stochastic)" if args.stochastic else ""),
-                "source": source,
-                "family": family,
-                "num_tasks": len(records),
-                "first_seed": int(seeds[0]),
-                "success": success / len(records),
-                "ci95": [low, high],
-                "collision": float(np.mean([r.collided for r in records])),
-                "seconds": time.perf_counter() - tic,
-            }
-            print(
-                f"{row['policy']:28s} {family:9s} success {row['success']:.3f} "
-                f"[{low:.2f}, {high:.2f}] collision {row['collision']:.3f} "
-                f"({row['seconds']:.0f} s)",
-                flush=True,
-            )
-            with out.open("a") as f:
-                f.write(json.dumps(row) + "\n")
+        label = policy_label(name) + (" (stochastic)" if args.stochastic else "")
+        score(policy, label, source, env_kwargs, args.num_tasks, args.families)
+
+
+def score(policy, label, source, env_kwargs, num_tasks, families=("blocked", "obstacles")):
+    """Run `policy` on `num_tasks` validation tasks of each family; print and append one line
+    per family to validation.jsonl; {family: success}."""
+    seeds = VALIDATION_SEEDS.seeds(num_tasks, VALIDATION_SEEDS.start + VALIDATION_OFFSET)
+    out = Path(__file__).with_name("validation.jsonl")
+    scores = {}
+    for family in families:
+        tic = time.perf_counter()
+        env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
+        records = evaluate(env, policy, seeds)
+        env.close()
+        success = int(sum(r.success for r in records))
+        low, high = wilson_interval(success, len(records))
+        row = {
+            "policy": label,
+            "source": source,
+            "family": family,
+            "num_tasks": len(records),
+            "first_seed": int(seeds[0]),
+            "success": success / len(records),
+            "ci95": [low, high],
+            "collision": float(np.mean([r.collided for r in records])),
+            "seconds": time.perf_counter() - tic,
+        }
+        print(
+            f"{label:28s} {family:9s} success {row['success']:.3f} "
+            f"[{low:.2f}, {high:.2f}] collision {row['collision']:.3f} "
+            f"({row['seconds']:.0f} s)",
+            flush=True,
+        )
+        with out.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+        scores[family] = row["success"]
+    return scores
 
 
 if __name__ == "__main__":
