@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from test_train import tiny_config
 
+from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD
 from clamgen.experiments.config import EnvConfig
 from clamgen.experiments.train import Trainer, make_env
 from clamgen.tasks.blocked import blind_goal_joints
@@ -38,7 +39,9 @@ def test_the_margin_stops_the_arm_short_of_the_obstacle():
         goal = blind_goal_joints(task.start_joints, task.target_position_m)
         reached = []
         for env in (clear, training):
-            joints, collided = env.unwrapped.scene.move_along(task.start_joints, goal, 0.01)
+            joints, collided = env.unwrapped.scene.move_along(
+                task.start_joints, goal, COLLISION_CHECK_RESOLUTION_RAD
+            )
             assert collided
             reached.append(np.abs(joints - task.start_joints).max())
         assert reached[1] <= reached[0]

@@ -136,7 +136,8 @@ class EnvConfig:
     training_collision_margin_m: float = 0.0
     """Beyond the paper: the training envs count contacts closer than this (m) as collisions, so
     the arm stops short of them and the step is penalised, and the policy learns to keep this
-    clearance. Periodic validation and every table use true contact (0). 0: the paper."""
+    clearance (an RRT teacher, `loop.teacher_fraction`, then plans with it too). Periodic
+    validation and every table use true contact (0). 0: the paper."""
 
     def __post_init__(self) -> None:
         _require_int("env.num_envs", self.num_envs, 1)
