@@ -154,6 +154,20 @@ def train_residual(config) -> dict:
     return summary
 
 
+def distill(config) -> dict:
+    """Distil a privileged residual into a vision residual with DAgger (beyond the paper)."""
+    from clamgen.experiments.distill import distill as run_distillation
+
+    _check_run_dir(config.student.run_dir)
+    _check_base_policy(config.student.base_policy)
+    summary = run_distillation(config)
+    del summary["iterations"]
+    print(json.dumps(summary, indent=2))
+    run_dir = config.student.run_dir
+    print(f"run directory: {run_dir} (policy: {run_dir / 'policy.pt'})")
+    return summary
+
+
 def _check_run_dir(run_dir: Path) -> None:
     """A ValueError, before anything is built or written, when `run_dir` is a file or cannot
     be written (nor created: its nearest existing parent is a file or cannot be written)."""
@@ -245,13 +259,17 @@ def _train_config(argv: list[str], default_preset: str = "base", stage: int = 1)
     from clamgen.experiments.stage2 import Stage2Config
 
     cls = TrainConfig if stage == 1 else Stage2Config
-    handler = train if stage == 1 else train_residual
+    handler = {1: train, 2: train_residual, 3: distill}[stage]
     preset = _option_value(argv, "--preset") or default_preset
     try:
         default = load_preset(preset, cls)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(str(error)) from error
     preset_help = f"Preset the options below start from. {PRESETS_HELP}"
+    if stage == 3:  # the student's stage-2 config, then the DAgger settings
+        from clamgen.experiments.distill import DistillSettings
+
+        distill_fields = [("distill", DistillSettings, field(default_factory=DistillSettings))]
     command = make_dataclass(
         f"{cls.__name__}Command",
         [
@@ -261,10 +279,11 @@ def _train_config(argv: list[str], default_preset: str = "base", stage: int = 1)
                 field(default=preset if preset in PRESET_NAMES else Path(preset)),
             ),
             ("config", Annotated[cls, tyro.conf.arg(name="")], field(default=default)),
+            *(distill_fields if stage == 3 else ()),
         ],
         frozen=True,
     )
-    name = "train" if stage == 1 else "train-residual"
+    name = {1: "train", 2: "train-residual", 3: "distill"}[stage]
     other_envs = OTHER_ENVS_HELP if stage == 1 else ""
     parsed = tyro.cli(
         command,
@@ -273,6 +292,10 @@ def _train_config(argv: list[str], default_preset: str = "base", stage: int = 1)
         description=f"{handler.__doc__} Options start from --preset {preset!r}. {PRESETS_HELP}"
         f"{other_envs}",
     )
+    if stage == 3:
+        from clamgen.experiments.distill import DistillConfig
+
+        return DistillConfig(student=parsed.config, distill=parsed.distill)
     return parsed.config
 
 
@@ -692,6 +715,7 @@ COMMANDS: dict[str, tuple[Callable, Callable]] = {
         lambda argv: _train_config(argv, "residual-cpu", stage=2),
         train_residual,
     ),
+    "distill": (lambda argv: _train_config(argv, "residual-cpu", stage=3), distill),
     "eval": (
         lambda argv: tyro.cli(
             EvalConfig,

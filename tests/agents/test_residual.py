@@ -236,6 +236,21 @@ def test_privileged_obstacle_residual_uses_poses_not_images():
     assert agent.act(data["obs"], True).shape == (8, 6)
 
 
+def test_arm_keypoints_reach_the_privileged_encoding():
+    agent = ResidualAgent(config(obs_source="obstacles", arm_keypoints=True), base_agent())
+    data = batch(obstacles=True)
+    assert np.isfinite(agent.update(data)["train/critic_loss"])
+    obs = data["obs"]
+    encode = agent.critic.encoder
+    features = encode(agent._visual(obs, train=False))
+    # The same obstacles with the arm elsewhere: the encoding changes (the poses alone do not).
+    moved = {**obs, "observation": obs["observation"] + 0.3}
+    assert not torch.allclose(features, encode(agent._visual(moved, train=False)))
+    assert agent.act(obs, True).shape == (8, 6)
+    with pytest.raises(ValueError, match="arm_keypoints"):
+        config(arm_keypoints=True)
+
+
 def test_state_dict_round_trip_gives_identical_actions(tmp_path):
     agent = ResidualAgent(config(warmup_updates=0), base_agent())
     agent.update(batch())

@@ -56,6 +56,7 @@ from clamgen.agents.encoders import (
     MultiViewEncoder,
     view_dropout_mask,
 )
+from clamgen.agents.geometry import NUM_ARM_KEYPOINTS, arm_keypoints
 from clamgen.agents.networks import (
     Actor,
     EnsembleCritic,
@@ -71,6 +72,7 @@ from clamgen.agents.sac import (
     soft_update,
 )
 from clamgen.replay.episode import Batch
+from clamgen.robot.ur5 import NUM_JOINTS
 
 LOW_DIM_KEYS = ("observation", "desired_goal")
 
@@ -117,6 +119,11 @@ class ResidualConfig:
     """The controller's dense layers (actor and each Q), ReLU."""
     obstacle_feature_dim: int = 50
     """Size of the obstacle-pose encoding when `obs_source` is "obstacles"."""
+    arm_keypoints: bool = False
+    """Beyond the paper, for `obs_source="obstacles"`: the obstacle encoding also reads points
+    along the arm from the joint angles and their offsets to the obstacles
+    (`clamgen.agents.geometry`), instead of leaving the forward kinematics to be learned.
+    False: the poses alone."""
     actor_lr: float = 3e-4
     """Adam learning rate of the actor."""
     critic_lr: float = 3e-4
@@ -160,6 +167,8 @@ class ResidualConfig:
                 raise ValueError(f"agent.{name} must be an integer >= {low}, got {value!r}")
         if self.obs_source not in ("images", "obstacles"):
             raise ValueError(f"obs_source must be 'images' or 'obstacles', got {self.obs_source!r}")
+        if self.arm_keypoints and self.obs_source != "obstacles":
+            raise ValueError("agent.arm_keypoints needs agent.obs_source='obstacles'")
         if not 0.0 <= self.view_dropout < 1.0:  # NaN fails too
             raise ValueError(f"agent.view_dropout must be in [0, 1), got {self.view_dropout}")
         if self.target_encoder not in ("target", "online"):
@@ -194,16 +203,35 @@ class ResidualConfig:
 
 
 class ObstacleEncoder(nn.Module):
-    """Obstacles' true poses (B, N, 8) -> encoding (B, D): the privileged stand-in for images."""
+    """Obstacles' true poses (B, N, 8) -> encoding (B, D): the privileged stand-in for images.
 
-    def __init__(self, num_obstacles: int, feature_dim: int) -> None:
+    With `arm_keypoints` the input is (B, N * 8 + 6), the poses flattened and then the joint
+    angles, and the encoding also reads points along the arm (`geometry.arm_keypoints`), each
+    point's offset to each obstacle's centre and that distance.
+    """
+
+    def __init__(self, num_obstacles: int, feature_dim: int, arm_keypoints: bool = False) -> None:
         super().__init__()
-        self.net = mlp(num_obstacles * 8, (128,), feature_dim)
+        self.num_obstacles = num_obstacles
+        self.arm_keypoints = arm_keypoints
+        size = num_obstacles * 8
+        if arm_keypoints:
+            size += NUM_ARM_KEYPOINTS * (3 + 4 * num_obstacles)
+        self.net = mlp(size, (128,), feature_dim)
         self.norm = nn.LayerNorm(feature_dim)
 
-    def forward(self, obstacles: torch.Tensor, view_mask: torch.Tensor | None = None):
+    def forward(self, visual_in: torch.Tensor, view_mask: torch.Tensor | None = None):
         del view_mask
-        return torch.tanh(self.norm(self.net(obstacles.flatten(1))))
+        inputs = visual_in.flatten(1)
+        if self.arm_keypoints:
+            poses, joints = inputs[:, :-NUM_JOINTS], inputs[:, -NUM_JOINTS:]
+            points = arm_keypoints(joints)  # (B, K, 3)
+            centres = poses.view(len(poses), self.num_obstacles, 8)[:, :, 2:5]
+            offsets = centres[:, :, None] - points[:, None]  # (B, N, K, 3)
+            inputs = torch.cat(
+                [poses, points.flatten(1), offsets.flatten(1), offsets.norm(dim=-1).flatten(1)], 1
+            )
+        return torch.tanh(self.norm(self.net(inputs)))
 
 
 class ResidualCritic(nn.Module):
@@ -356,7 +384,9 @@ class ResidualAgent:
                 encoder: nn.Module = MultiViewEncoder(enc)
                 feature_dim = enc.feature_dim
             else:
-                encoder = ObstacleEncoder(num_obstacles, config.obstacle_feature_dim)
+                encoder = ObstacleEncoder(
+                    num_obstacles, config.obstacle_feature_dim, config.arm_keypoints
+                )
                 feature_dim = config.obstacle_feature_dim
             critic = ResidualCritic(
                 encoder,
@@ -484,7 +514,11 @@ class ResidualAgent:
     def _visual(self, obs: Mapping[str, Any], train: bool) -> torch.Tensor:
         """Images cropped to the encoder's size (random offsets when training), or poses."""
         if self.config.obs_source != "images":
-            return torch.as_tensor(np.asarray(obs["obstacles"]), device=self.device).float()
+            poses = torch.as_tensor(np.asarray(obs["obstacles"]), device=self.device).float()
+            if not self.config.arm_keypoints:
+                return poses
+            joints = torch.as_tensor(np.asarray(obs["observation"]), device=self.device).float()
+            return torch.cat([poses.flatten(1), joints], 1)
         value = torch.as_tensor(np.asarray(obs["images"]), device=self.device)
         crop = self.config.encoder.image_size
         if train:
@@ -612,6 +646,22 @@ class ResidualAgent:
             action = self._sample(visual, low_dim)[0]
         action = action.cpu().numpy()
         return action[0] if single else action
+
+    @torch.inference_mode()
+    def mean_action(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The combined policy's mean before the tanh, (B, A), for a batch of observations:
+        what a distilled student regresses (`imitation_loss`)."""
+        visual = self.critic.encoder(self._visual(obs, train=False))
+        return self._pre_squash(visual, self._actor_view(self._state(obs)))[0].cpu().numpy()
+
+    def imitation_loss(self, obs: Mapping[str, Any], target_mean: torch.Tensor) -> torch.Tensor:
+        """Mean squared error between this policy's pre-squash mean and `target_mean` (B, A),
+        on random crops with view dropout as in training; gradients reach the encoder and the
+        actor (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
+        visual_in = self._visual(obs, train=True)
+        visual = self.critic.encoder(visual_in, self._view_mask(len(target_mean)))
+        mean, _ = self._pre_squash(visual, self._actor_view(self._state(obs)))
+        return torch.mean((mean - target_mean) ** 2)
 
     # ------------------------------------------------------------------ update
     def update(self, batch: Batch) -> dict[str, float]:

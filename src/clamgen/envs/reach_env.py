@@ -33,7 +33,9 @@ collision-free IK solution and the start is collision-free); "blocked" as
 `clamgen.tasks.blocked` describes (as "obstacles", and the obstacle-blind path collides).
 
 ## Episode end
-Terminates on success; truncates after `max_episode_steps` (100) steps.
+Terminates on success, and on a collision when `collision_ends_episode` (a training option: a
+collision then ends the episode as the evaluation rule counts it, a failure); truncates after
+`max_episode_steps` (100) steps.
 """
 
 from __future__ import annotations
@@ -92,6 +94,8 @@ class ReachEnv(gym.Env):
         collision_penalty: magnitude (>= 0) subtracted from the reward on a colliding step.
         include_obstacle_state: add the obstacles' true poses as `obstacles` (privileged).
         collision_margin_m: contacts closer than this count as collisions (conservative).
+        collision_ends_episode: a collision terminates the episode (see `compute_terminated`);
+            False (the paper): the arm stops before contact and the episode goes on.
         max_episode_steps: truncation horizon (None: never; `gym.make` adds a TimeLimit).
         render_mode: None or "rgb_array" (an outside view, for videos).
     """
@@ -111,6 +115,7 @@ class ReachEnv(gym.Env):
         collision_penalty: float = 0.0,
         include_obstacle_state: bool = False,
         collision_margin_m: float = 0.0,
+        collision_ends_episode: bool = False,
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
         render_mode: str | None = None,
         task_family: str | None = None,
@@ -157,6 +162,11 @@ class ReachEnv(gym.Env):
         self.obs_mode = obs_mode
         self.collision_penalty = collision_penalty  # validated by the setter
         self.include_obstacle_state = include_obstacle_state
+        if not isinstance(collision_ends_episode, bool | np.bool_):
+            raise ValueError(
+                f"collision_ends_episode must be True or False, got {collision_ends_episode!r}"
+            )
+        self.collision_ends_episode = bool(collision_ends_episode)
         self.max_episode_steps = max_episode_steps
         self.render_mode = render_mode
 
@@ -259,9 +269,10 @@ class ReachEnv(gym.Env):
             "reward_collision": reward_collision,
             "executed_action": ((reached - joints) / MAX_JOINT_DELTA_RAD).astype(np.float32),
         }
+        terminated = success or (collided and self.collision_ends_episode)
         horizon = self.max_episode_steps
-        truncated = horizon is not None and self._num_steps >= horizon and not success
-        return self._observation(), reward_step + reward_collision, success, truncated, info
+        truncated = horizon is not None and self._num_steps >= horizon and not terminated
+        return self._observation(), reward_step + reward_collision, terminated, truncated, info
 
     def compute_reward(
         self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None
@@ -280,6 +291,20 @@ class ReachEnv(gym.Env):
         if collision is not None:
             reward = reward - self._collision_penalty * collision
         return reward.astype(np.float32)
+
+    def compute_terminated(
+        self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None
+    ) -> np.ndarray:
+        """Vectorised terminal flags for (relabelled) goals; agrees with `step`: success, or a
+        collision when `collision_ends_episode`. Arguments as `compute_reward`; bool array."""
+        distance = np.linalg.norm(
+            np.asarray(achieved_goal, np.float64) - np.asarray(desired_goal, np.float64), axis=-1
+        )
+        done = distance < SUCCESS_DISTANCE_M
+        collision = _collision_flags(info, done.shape)
+        if self.collision_ends_episode and collision is not None:
+            done = done | collision.astype(bool)
+        return done
 
     def render(self) -> np.ndarray | None:
         """The outside view (480x640 RGB uint8) when render_mode == "rgb_array"."""

@@ -138,6 +138,14 @@ class EnvConfig:
     the arm stops short of them and the step is penalised, and the policy learns to keep this
     clearance (an RRT teacher, `loop.teacher_fraction`, then plans with it too). Periodic
     validation and every table use true contact (0). 0: the paper."""
+    collision_ends_episode: bool = False
+    """Beyond the paper: in the training envs a collision ends the episode and its transition is
+    terminal, so that the learner values a collision as the evaluation rule counts it, a
+    failure, instead of stopping at the obstacle and sliding on. The collision penalty is then
+    the whole cost of a collision: give it at least the value of never arriving,
+    `STEP_PENALTY / (1 - agent.gamma)` (0.5 at gamma 0.98) from the start of training, or
+    ending the episode by a collision pays better than trying. Periodic validation and every
+    table are unchanged. False: the paper."""
 
     def __post_init__(self) -> None:
         _require_int("env.num_envs", self.num_envs, 1)

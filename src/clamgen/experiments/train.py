@@ -62,7 +62,8 @@ TEACHER_STREAM = 7
 
 
 def make_env(config: EnvConfig, training: bool = False) -> gym.Env:
-    """A training (`training`: with `config.training_collision_margin_m`) or evaluation env.
+    """A training (`training`: with `config.training_collision_margin_m` and
+    `config.collision_ends_episode`) or evaluation env.
     CLAMGen ids are built bare (their own 100-step truncation, no wrappers) so their full state
     can be checkpointed; other ids go through `gym.make`."""
     if config.env_id in ENV_IDS:
@@ -71,6 +72,7 @@ def make_env(config: EnvConfig, training: bool = False) -> gym.Env:
         kwargs["max_episode_steps"] = spec.max_episode_steps
         if training:
             kwargs["collision_margin_m"] = config.training_collision_margin_m
+            kwargs["collision_ends_episode"] = config.collision_ends_episode
         return ReachEnv(**kwargs)
     return gym.make(config.env_id)
 
@@ -206,15 +208,23 @@ class Trainer:
         # The loop seed seeds everything, the agent included.
         self.agent = self.stage.make_agent(probe)
         self.memory_need_bytes = self._check_memory(probe)
+        # The env's own terminal rule where it has one (a collision may end an episode);
+        # otherwise the buffer derives it from the sparse reward.
+        compute_terminated = getattr(probe.unwrapped, "compute_terminated", None)
         self.buffer = ReplayBuffer(
             config.replay,
             obs_spec_from_space(probe.observation_space),
             int(np.prod(probe.action_space.shape)),
             probe.unwrapped.compute_reward,
+            compute_terminated,
         )
         rerender = self.stage.make_rerender() if self.stage.make_rerender else None
         self.pipeline = EpisodePipeline(
-            self.buffer, self.stage.hindsight, probe.unwrapped.compute_reward, rerender=rerender
+            self.buffer,
+            self.stage.hindsight,
+            probe.unwrapped.compute_reward,
+            compute_terminated,
+            rerender=rerender,
         )
         self.rng = np.random.default_rng(loop.seed)
         self.teacher_rng = np.random.default_rng([loop.seed, TEACHER_STREAM])

@@ -1,0 +1,58 @@
+"""Arm geometry for the networks: points along the UR5's links from its joint angles (torch).
+
+The privileged residual sees the obstacles' true poses, but whether a motion collides depends
+on where the links are, which joint angles give only through forward kinematics. Handing the
+network points along the arm (and, in `ObstacleEncoder`, each point's offset to each obstacle)
+saves it from learning the kinematics first. The points are a function of the joints alone.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from clamgen.robot.ur5 import DH_A, DH_ALPHA, DH_D, GRIPPER_TIP_OFFSET_M, NUM_JOINTS
+
+# Fractions along the two long links (shoulder -> elbow: 0.425 m, elbow -> wrist: 0.392 m) at
+# which extra points are placed, so that no part of the arm is more than ~5 cm from a point;
+# the short wrist links are covered by their frame origins.
+LONG_LINK_FRACTIONS = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875)
+# DH frame indices (1-based origins) that bound the two long links.
+_LONG_LINKS = ((1, 2), (2, 3))
+NUM_ARM_KEYPOINTS = NUM_JOINTS + 1 + len(_LONG_LINKS) * len(LONG_LINK_FRACTIONS)
+
+
+def _dh(theta: torch.Tensor, d: float, a: float, alpha: float) -> torch.Tensor:
+    """Standard DH transforms Rz(theta) Tz(d) Tx(a) Rx(alpha), (B, 4, 4)."""
+    ct, st = torch.cos(theta), torch.sin(theta)
+    ca, sa = float(torch.cos(torch.tensor(alpha))), float(torch.sin(torch.tensor(alpha)))
+    zero, one = torch.zeros_like(theta), torch.ones_like(theta)
+    rows = (
+        (ct, -st * ca, st * sa, a * ct),
+        (st, ct * ca, -ct * sa, a * st),
+        (zero, zero + sa, zero + ca, zero + d),
+        (zero, zero, zero, one),
+    )
+    return torch.stack([torch.stack(row, -1) for row in rows], -2)
+
+
+def arm_keypoints(joints: torch.Tensor) -> torch.Tensor:
+    """Points along the arm in the base (= world) frame, (B, `NUM_ARM_KEYPOINTS`, 3).
+
+    joints: (B, 6) radians. The points: the origins of DH frames 1..6 (shoulder, elbow, the
+    three wrists, flange), the suction tip, then `LONG_LINK_FRACTIONS` of the way along the
+    upper arm and along the forearm.
+    """
+    joints = joints.to(torch.float32)
+    pose = None
+    origins = []
+    for i in range(NUM_JOINTS):
+        link = _dh(joints[:, i], float(DH_D[i]), float(DH_A[i]), float(DH_ALPHA[i]))
+        pose = link if pose is None else pose @ link
+        origins.append(pose[:, :3, 3])
+    origins.append(pose[:, :3, 3] + GRIPPER_TIP_OFFSET_M * pose[:, :3, 2])
+    fractions = torch.tensor(LONG_LINK_FRACTIONS, device=joints.device).view(1, -1, 1)
+    along = [
+        origins[a - 1][:, None] + fractions * (origins[b - 1] - origins[a - 1])[:, None]
+        for a, b in _LONG_LINKS
+    ]
+    return torch.cat([torch.stack(origins, 1), *along], 1)

@@ -1,0 +1,342 @@
+"""Distil a privileged residual into a vision residual with DAgger (beyond the paper).
+
+The privileged residual sees the obstacles' true poses and trains in minutes; the vision
+residual has to find the same behaviour from camera views, by RL, at many times the cost. Here
+the vision student instead imitates the privileged teacher (Ross et al. 2011's DAgger, as in
+teacher-student training for legged robots and "learning by cheating" for driving):
+
+1. iteration 0: the teacher drives `episodes_per_iteration` training episodes; every visited
+   state is stored with the student's inputs (views, joints, goal) and the teacher's label;
+2. later iterations: the student drives, the teacher only labels (the teacher drives a share
+   `teacher_share ** iteration` of the episodes), so that the data covers the states the
+   student's own mistakes lead to;
+3. after each iteration the student (encoder and actor, on the frozen base as CLAMGen's
+   residual) regresses the teacher's pre-squash mean action on all data so far, with CURL's
+   random crops and view dropout, and is scored on validation tasks.
+
+The label is the teacher's combined action before the tanh (`ResidualAgent.mean_action`),
+clipped to +-`TARGET_CLIP`, so that a saturated action is still learned as saturated without
+chasing an unbounded target. The student's policy file is a residual policy like
+`clamgen train-residual`'s: `clamgen eval` and `clamgen render` take it.
+
+Resumable at iteration granularity: each iteration's data and the student after it are written
+to the run directory; running the same command again continues after the last finished one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.config import (
+    TRAINING_SEEDS,
+    VALIDATION_SEEDS,
+    _require_int,
+    config_to_json,
+)
+from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
+from clamgen.experiments.stage2 import (
+    RESIDUAL_POLICY_KIND,
+    Stage2Config,
+    load_residual_agent,
+    residual_stage,
+)
+from clamgen.experiments.train import POLICY_NAME, make_env
+
+# Teacher labels: pre-squash means clipped to this (tanh(3) = 0.995, a saturated step).
+TARGET_CLIP = 3.0
+# Env reset seeds of distillation episodes: training seeds far from the RL runs' (loop seed *
+# 1000 + env index) and from results/stage2/tune/distill.py's.
+DISTILL_SEED_BASE = 800_000_000
+# Observation keys the student reads (the teacher also reads `obstacles`).
+STUDENT_KEYS = ("images", "observation", "achieved_goal", "desired_goal")
+STATE_NAME = "student.pt"
+
+
+@dataclass(frozen=True)
+class DistillSettings:
+    """The DAgger loop: data per iteration, regression, validation."""
+
+    teacher: str = ""
+    """Policy file of a privileged residual (`--agent.obs-source obstacles`), the teacher."""
+    iterations: int = 6
+    """DAgger iterations (iteration 0 is driven by the teacher)."""
+    episodes_per_iteration: int = 200
+    """Training episodes collected per iteration."""
+    updates_per_iteration: int = 3000
+    """Regression steps on all data so far after each iteration."""
+    teacher_share: float = 0.5
+    """Iteration k >= 1: the teacher drives a share teacher_share ** k of the episodes."""
+    lr: float = 3e-4
+    """Adam learning rate of the student's encoder and actor."""
+    num_eval_episodes: int = 100
+    """Validation tasks (`VALIDATION_SEEDS`) scored after each iteration; the best iteration's
+    student becomes `policy.pt`."""
+    seed: int = 0
+    """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
+    student's initialisation and its batches."""
+
+    def __post_init__(self) -> None:
+        for name in ("iterations", "episodes_per_iteration", "num_eval_episodes"):
+            _require_int(f"distill.{name}", getattr(self, name), 1)
+        _require_int("distill.updates_per_iteration", self.updates_per_iteration, 0)
+        _require_int("distill.seed", self.seed, 0, 999)
+        if not 0 <= self.teacher_share <= 1:
+            raise ValueError(f"distill.teacher_share must be in [0, 1], got {self.teacher_share}")
+        if not self.lr > 0:
+            raise ValueError(f"distill.lr must be > 0, got {self.lr}")
+
+
+@dataclass(frozen=True)
+class DistillConfig:
+    """Everything `clamgen distill` needs: the student (a stage-2 config, from a preset) and
+    the DAgger settings."""
+
+    student: Stage2Config = field(default_factory=Stage2Config)
+    """The vision student: env (views, image size, task family), agent, base policy, run_dir."""
+    distill: DistillSettings = field(default_factory=DistillSettings)
+    """The DAgger loop."""
+
+
+class _Dataset:
+    """The aggregated (student input, teacher label) pairs, in growing numpy arrays."""
+
+    def __init__(self) -> None:
+        self.chunks: list[dict[str, np.ndarray]] = []
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def add(self, chunk: dict[str, np.ndarray]) -> None:
+        self.chunks.append(chunk)
+        self.arrays = {k: np.concatenate([c[k] for c in self.chunks]) for k in chunk}
+
+    def __len__(self) -> int:
+        return len(self.arrays.get("label", ()))
+
+    def batch(self, index: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        obs = {k: self.arrays[k][index] for k in STUDENT_KEYS}
+        return obs, self.arrays["label"][index]
+
+
+class Distiller:
+    """DAgger from a privileged teacher into a vision student; see the module docstring."""
+
+    def __init__(self, config: DistillConfig) -> None:
+        self.config = config
+        settings = config.distill
+        if not settings.teacher:
+            raise ValueError("distill.teacher is required: a privileged residual policy file")
+        self.teacher, teacher_config = load_residual_agent(
+            ckpt.resolve_policy_path(settings.teacher)
+        )
+        if teacher_config.agent.obs_source != "obstacles":
+            raise ValueError(
+                f"distill.teacher {settings.teacher} is not a privileged residual "
+                "(agent.obs_source 'obstacles')"
+            )
+        student = config.student
+        if student.agent.obs_source != "images":
+            raise ValueError("the student must be a vision residual (agent.obs_source 'images')")
+        torch.set_num_threads(student.loop.torch_threads)
+        self.run_dir = Path(student.run_dir)
+        # Collection envs show the teacher the poses too; the student's own env does not.
+        collect = dataclasses.replace(student.env, include_obstacle_state=True)
+        self.envs = [make_env(collect, training=True) for _ in range(student.env.num_envs)]
+        self.eval_env = make_env(student.env)
+        self.student = residual_stage(
+            dataclasses.replace(student, loop=dataclasses.replace(student.loop, seed=settings.seed))
+        ).make_agent(self.envs[0])
+        params = [*self.student.critic.encoder.parameters(), *self.student.actor.parameters()]
+        self.optimizer = torch.optim.Adam(params, lr=settings.lr)
+        self.rng = np.random.default_rng([settings.seed, 1])
+        self.data = _Dataset()
+        self.history: list[dict[str, Any]] = []
+        self.next_seed = DISTILL_SEED_BASE + settings.seed * 100_000
+
+    # ------------------------------------------------------------------ the loop
+    def run(self, show_progress: bool = True) -> dict[str, Any]:
+        settings = self.config.distill
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        start = self._resume()
+        (self.run_dir / "config.json").write_text(_config_json(self.config))
+        for iteration in range(start, settings.iterations):
+            tic = time.perf_counter()
+            share = 1.0 if iteration == 0 else settings.teacher_share**iteration
+            chunk, rollout = self._collect(share, iteration, show_progress)
+            ckpt.save_npz(self.run_dir / "data" / f"iteration{iteration}.npz", chunk)
+            self.data.add(chunk)
+            loss = self._regress(settings.updates_per_iteration, iteration, show_progress)
+            scores = self._validate()
+            row = {
+                "iteration": iteration,
+                "teacher_share": share,
+                "samples": len(self.data),
+                "rollout_success": rollout,
+                "loss": loss,
+                **{f"validation/{k}": v for k, v in scores.items()},
+                "seconds": time.perf_counter() - tic,
+            }
+            self.history.append(row)
+            print(json.dumps(row), flush=True)
+            self._save(iteration, scores["success_rate"])
+        best = max(self.history, key=lambda r: r["validation/success_rate"])
+        summary = {"best_iteration": best["iteration"], **best, "iterations": self.history}
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        return summary
+
+    def _collect(self, share: float, iteration: int, show_progress: bool):
+        """`episodes_per_iteration` episodes, the teacher driving each with probability
+        `share`; every state labelled by the teacher. (chunk of arrays, the student-driven
+        episodes' success rate or None)."""
+        wanted = self.config.distill.episodes_per_iteration
+        rows: dict[str, list[np.ndarray]] = {k: [] for k in (*STUDENT_KEYS, "obstacles", "label")}
+        driver = [False] * len(self.envs)
+        obs = [self._reset(i, share, driver) for i in range(len(self.envs))]
+        started, finished, student_outcomes = len(self.envs), 0, []
+        bar = tqdm(total=wanted, desc=f"iteration {iteration} episodes", disable=not show_progress)
+        active = list(range(len(self.envs)))
+        while active:
+            batch = {k: np.stack([obs[i][k] for i in active]) for k in obs[active[0]]}
+            labels = np.clip(self.teacher.mean_action(batch), -TARGET_CLIP, TARGET_CLIP)
+            if all(driver[i] for i in active):
+                student = labels  # not acted on: the teacher drives every episode
+            else:
+                student = self.student.act(batch, deterministic=True)
+            for key in (*STUDENT_KEYS, "obstacles"):
+                rows[key].append(batch[key])
+            rows["label"].append(labels.astype(np.float32))
+            still = []
+            for j, i in enumerate(active):
+                action = np.tanh(labels[j]) if driver[i] else student[j]
+                obs[i], _, terminated, truncated, info = self.envs[i].step(action)
+                if not (terminated or truncated):
+                    still.append(i)
+                    continue
+                finished += 1
+                bar.update()
+                if not driver[i]:
+                    student_outcomes.append(bool(info["is_success"]))
+                if started < wanted:
+                    obs[i] = self._reset(i, share, driver)
+                    started += 1
+                    still.append(i)
+            active = still
+        bar.close()
+        chunk = {k: np.concatenate(v) for k, v in rows.items()}
+        rollout = float(np.mean(student_outcomes)) if student_outcomes else None
+        return chunk, rollout
+
+    def _reset(self, i: int, share: float, driver: list[bool]) -> dict[str, np.ndarray]:
+        seed = self.next_seed
+        if seed not in TRAINING_SEEDS:  # pragma: no cover - needs 10^8 episodes
+            raise ValueError(f"distillation ran out of training seeds at {seed}")
+        self.next_seed += 1
+        driver[i] = bool(self.rng.random() < share)
+        return self.envs[i].reset(seed=seed)[0]
+
+    def _regress(self, steps: int, iteration: int, show_progress: bool) -> float | None:
+        """`steps` Adam steps of the imitation loss on random batches of all data."""
+        batch_size = self.config.student.agent.batch_size
+        loss_value = None
+        for _ in tqdm(
+            range(steps), desc=f"iteration {iteration} regression", disable=not show_progress
+        ):
+            index = self.rng.integers(0, len(self.data), batch_size)
+            obs, labels = self.data.batch(index)
+            loss = self.student.imitation_loss(obs, torch.as_tensor(labels))
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optimizer.step()
+            loss_value = float(loss.detach())
+        return loss_value
+
+    def _validate(self) -> dict[str, float]:
+        seeds = VALIDATION_SEEDS.seeds(self.config.distill.num_eval_episodes)
+        return summarize(evaluate(self.eval_env, SACPolicy(self.student), seeds))
+
+    # --------------------------------------------------------------- files
+    def _payload(self, iteration: int) -> dict[str, Any]:
+        state = self.student.state_dict()
+        base_config = dataclasses.asdict(self.student.base.config)
+        return {
+            "format": ckpt.FORMAT,
+            "kind": RESIDUAL_POLICY_KIND,
+            "config": config_to_json(self.config.student),
+            "env_steps": len(self.data),
+            "distill_iteration": iteration,
+            "agent": {k: state[k] for k in self.student.policy_state_keys()},
+            "base_config": base_config,
+            "action_dim": self.student.action_dim,
+        }
+
+    def _save(self, iteration: int, success: float) -> None:
+        payload = self._payload(iteration)
+        ckpt.save_torch(self.run_dir / f"policy_iteration{iteration}.pt", payload)
+        best = max(r["validation/success_rate"] for r in self.history)
+        if success >= best:
+            ckpt.save_torch(self.run_dir / POLICY_NAME, payload)
+        state = {
+            "iteration": iteration,
+            "student": self.student.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "rng": self.rng.bit_generator.state,
+            "next_seed": self.next_seed,
+            "history": self.history,
+        }
+        ckpt.save_torch(
+            self.run_dir / STATE_NAME, {"format": ckpt.FORMAT, "kind": "distill", **state}
+        )
+
+    def _resume(self) -> int:
+        """The iteration to start from: 0, or the one after the last saved."""
+        path = self.run_dir / STATE_NAME
+        if not path.exists():
+            return 0
+        saved = json.loads((self.run_dir / "config.json").read_text())
+        if _resumable_part(saved) != _resumable_part(json.loads(_config_json(self.config))):
+            raise ValueError(
+                f"{self.run_dir} holds a distillation with another configuration "
+                "(config.json; only distill.iterations may change): use another "
+                "--run-dir or the same options"
+            )
+        state = ckpt.load_torch(path, kind="distill")
+        self.student.load_state_dict(state["student"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.rng.bit_generator.state = state["rng"]
+        self.next_seed = state["next_seed"]
+        self.history = list(state["history"])
+        for iteration in range(state["iteration"] + 1):
+            self.data.add(ckpt.load_npz(self.run_dir / "data" / f"iteration{iteration}.npz"))
+        print(f"resumed after iteration {state['iteration']} ({len(self.data)} samples)")
+        return state["iteration"] + 1
+
+
+def _config_json(config: DistillConfig) -> str:
+    return (
+        json.dumps(
+            {
+                "student": json.loads(config_to_json(config.student)),
+                "distill": dataclasses.asdict(config.distill),
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+
+
+def _resumable_part(config: dict) -> dict:
+    """A config's JSON without what a resumed run may change (the number of iterations)."""
+    return {**config, "distill": {**config["distill"], "iterations": None}}
+
+
+def distill(config: DistillConfig, show_progress: bool = True) -> dict[str, Any]:
+    """Run the DAgger loop of `config`; the summary (best iteration and every iteration)."""
+    return Distiller(config).run(show_progress)

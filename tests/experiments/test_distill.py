@@ -1,0 +1,133 @@
+"""DAgger from a privileged residual into a vision residual, end to end on tiny budgets."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from test_stage2 import LOOP, image_config
+from test_train import tiny_config
+
+from clamgen.experiments.config import load_preset
+from clamgen.experiments.distill import TARGET_CLIP, DistillConfig, Distiller, DistillSettings
+from clamgen.experiments.policies import load_policy
+from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer
+from clamgen.experiments.train import POLICY_NAME, Trainer
+from clamgen.replay import ReplayConfig
+
+
+@pytest.fixture(scope="module")
+def base_policy(tmp_path_factory):
+    config = tiny_config(tmp_path_factory.mktemp("base") / "run", total=80)
+    Trainer(config).run(show_progress=False)
+    return str(config.run_dir / POLICY_NAME)
+
+
+@pytest.fixture(scope="module")
+def teacher(tmp_path_factory, base_policy):
+    preset = load_preset("residual-obstacles", Stage2Config)
+    config = dataclasses.replace(
+        preset,
+        run_dir=tmp_path_factory.mktemp("teacher") / "run",
+        base_policy=base_policy,
+        env=dataclasses.replace(preset.env, env_id="CLAMGen/ReachMixed-v0", num_envs=2),
+        agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
+        replay=ReplayConfig(capacity=5_000),
+        loop=LOOP,
+    )
+    Stage2Trainer(config).run(show_progress=False)
+    return str(config.run_dir / POLICY_NAME)
+
+
+def distill_config(tmp_path, base_policy, teacher, **settings) -> DistillConfig:
+    student = image_config(tmp_path, base_policy)
+    student = dataclasses.replace(
+        student, env=dataclasses.replace(student.env, env_id="CLAMGen/ReachMixed-v0")
+    )
+    defaults = dict(
+        teacher=teacher,
+        iterations=2,
+        episodes_per_iteration=3,
+        updates_per_iteration=4,
+        num_eval_episodes=2,
+    )
+    return DistillConfig(student=student, distill=DistillSettings(**{**defaults, **settings}))
+
+
+def test_dagger_labels_every_state_with_the_teacher_and_writes_a_policy(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    config = distill_config(tmp_path, base_policy, teacher)
+    distiller = Distiller(config)
+    summary = distiller.run(show_progress=False)
+    assert [row["iteration"] for row in summary["iterations"]] == [0, 1]
+    assert summary["iterations"][0]["teacher_share"] == 1.0
+    assert summary["iterations"][1]["teacher_share"] == 0.5
+    # Every stored state carries the teacher's (clipped) pre-squash mean for that state.
+    data = distiller.data.arrays
+    assert len(data["label"]) == len(data["images"]) >= 6  # 3 episodes of >= 1 step, twice
+    assert np.abs(data["label"]).max() <= TARGET_CLIP
+    index = np.arange(5)
+    obs = {k: data[k][index] for k in ("observation", "desired_goal")}
+    obs["obstacles"] = data["obstacles"][index]
+    expected = np.clip(distiller.teacher.mean_action(obs), -TARGET_CLIP, TARGET_CLIP)
+    np.testing.assert_allclose(data["label"][index], expected, atol=1e-5)
+    # The student's policy file is a residual policy that eval and render load by path.
+    policy, _, env_kwargs = load_policy(config.student.run_dir / POLICY_NAME)
+    assert env_kwargs["num_views"] == 2 and not env_kwargs["include_obstacle_state"]
+    obs = {k: data[k][0] for k in ("images", "observation", "achieved_goal", "desired_goal")}
+    assert policy.act(obs).shape == (6,)
+
+
+def test_regression_moves_the_student_towards_the_labels(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    distiller = Distiller(distill_config(tmp_path, base_policy, teacher))
+    chunk, _ = distiller._collect(1.0, 0, show_progress=False)
+    distiller.data.add(chunk)
+    index = np.arange(min(len(distiller.data), 16))
+    obs, labels = distiller.data.batch(index)
+    torch.manual_seed(0)
+    before = float(distiller.student.imitation_loss(obs, torch.as_tensor(labels)))
+    distiller._regress(60, 0, show_progress=False)
+    after = np.mean(
+        [float(distiller.student.imitation_loss(obs, torch.as_tensor(labels))) for _ in range(4)]
+    )
+    assert after < before
+
+
+def test_a_rerun_resumes_after_the_last_iteration_and_refuses_other_settings(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    first = distill_config(tmp_path, base_policy, teacher, iterations=1)
+    Distiller(first).run(show_progress=False)
+    # Same settings, one more iteration: only iteration 1 runs, on iteration 0's data too.
+    more = distill_config(tmp_path, base_policy, teacher, iterations=2)
+    with pytest.raises(ValueError, match="another configuration"):
+        Distiller(distill_config(tmp_path, base_policy, teacher, lr=1e-3)).run(False)
+    resumed = Distiller(more)
+    summary = resumed.run(show_progress=False)
+    assert [row["iteration"] for row in summary["iterations"]] == [0, 1]
+    first_samples = summary["iterations"][0]["samples"]
+    assert summary["iterations"][1]["samples"] > first_samples  # iteration 0's data kept
+    assert (first.student.run_dir / "data" / "iteration1.npz").exists()
+
+
+def test_the_teacher_must_be_privileged_and_the_student_must_see_images(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    student = image_config(tmp_path, base_policy)
+    with pytest.raises(ValueError, match=r"distill\.teacher is required"):
+        Distiller(DistillConfig(student=student))
+    with pytest.raises(ValueError, match="not a privileged residual"):
+        Distiller(DistillConfig(student=student, distill=DistillSettings(teacher="residual-1view")))
+    with pytest.raises(ValueError, match=r"distill\.iterations"):
+        DistillSettings(iterations=0)
