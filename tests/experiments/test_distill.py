@@ -9,7 +9,13 @@ from test_stage2 import LOOP, image_config
 from test_train import tiny_config
 
 from clamgen.experiments.config import load_preset
-from clamgen.experiments.distill import TARGET_CLIP, DistillConfig, Distiller, DistillSettings
+from clamgen.experiments.distill import (
+    TARGET_CLIP,
+    DistillConfig,
+    Distiller,
+    DistillSettings,
+    pose_loss,
+)
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer
 from clamgen.experiments.train import POLICY_NAME, Trainer
@@ -86,16 +92,16 @@ def test_regression_moves_the_student_towards_the_labels(
     base_policy,
     teacher,
 ):
-    distiller = Distiller(distill_config(tmp_path, base_policy, teacher))
+    distiller = Distiller(distill_config(tmp_path, base_policy, teacher, pose_weight=1.0))
     chunk, _ = distiller._collect(1.0, 0, show_progress=False)
     distiller.data.add(chunk)
     index = np.arange(min(len(distiller.data), 16))
     obs, labels = distiller.data.batch(index)
     torch.manual_seed(0)
-    before = float(distiller.student.imitation_loss(obs, torch.as_tensor(labels)))
+    before = float(distiller.student.imitation_loss(obs, torch.as_tensor(labels))[0])
     distiller._regress(60, 0, show_progress=False)
     after = np.mean(
-        [float(distiller.student.imitation_loss(obs, torch.as_tensor(labels))) for _ in range(4)]
+        [float(distiller.student.imitation_loss(obs, torch.as_tensor(labels))[0]) for _ in range(4)]
     )
     assert after < before
 
@@ -131,3 +137,9 @@ def test_the_teacher_must_be_privileged_and_the_student_must_see_images(
         Distiller(DistillConfig(student=student, distill=DistillSettings(teacher="residual-1view")))
     with pytest.raises(ValueError, match=r"distill\.iterations"):
         DistillSettings(iterations=0)
+
+
+def test_the_pose_loss_ignores_the_order_of_the_obstacles():
+    poses = torch.arange(2 * 2 * 8, dtype=torch.float32).view(2, 2, 8)
+    assert float(pose_loss(poses.flip(1), poses)) == 0.0
+    assert float(pose_loss(poses + 1, poses)) == 1.0

@@ -34,13 +34,22 @@ def main() -> None:
     parser.add_argument(
         "--stochastic", action="store_true", help="sample actions instead of the mean"
     )
+    parser.add_argument(
+        "--critic-candidates",
+        type=int,
+        default=0,
+        help="act by the critic's best of this many candidate actions (0: the policy's mean)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:
         policy, source, env_kwargs = load_policy(name)
         if args.stochastic:
             policy.deterministic = False
+        policy.critic_candidates = args.critic_candidates
         label = policy_label(name) + (" (stochastic)" if args.stochastic else "")
+        if args.critic_candidates:
+            label += f" (critic, {args.critic_candidates} candidates)"
         score(policy, label, source, env_kwargs, args.num_tasks, args.families)
 
 

@@ -75,6 +75,10 @@ from clamgen.replay.episode import Batch
 from clamgen.robot.ur5 import NUM_JOINTS
 
 LOW_DIM_KEYS = ("observation", "desired_goal")
+# Critic-guided acting (`ResidualAgent.act_by_critic`): candidate actions per step, and the std
+# of their perturbation of the policy's mean before the tanh (1: up to a full step either way).
+CRITIC_CANDIDATES = 64
+CRITIC_CANDIDATE_NOISE = 1.0
 
 
 @dataclass(frozen=True)
@@ -648,20 +652,62 @@ class ResidualAgent:
         return action[0] if single else action
 
     @torch.inference_mode()
+    def act_by_critic(
+        self,
+        obs: Mapping[str, Any],
+        num_candidates: int = CRITIC_CANDIDATES,
+        noise: float = CRITIC_CANDIDATE_NOISE,
+        generator: torch.Generator | None = None,
+    ) -> np.ndarray:
+        """Beyond the paper: the best of `num_candidates` actions by the learned Q (the lower
+        of the twin Qs, Q_base + Q_res): the policy's mean action and `num_candidates - 1`
+        perturbations of it, Gaussian with std `noise` before the tanh. The actor follows Q's
+        local gradient, as a potential field does, and can settle where every small step looks
+        worse; candidates farther out let the critic pick a way around (QT-Opt acts by
+        sampling Q's argmax, Kalashnikov et al. 2018). One observation or a batch, as `act`."""
+        single = np.asarray(obs["desired_goal"]).ndim == 1
+        if single:
+            obs = {k: np.asarray(v)[None] for k, v in obs.items()}
+        state = self._state(obs)
+        visual = self.critic.encoder(self._visual(obs, train=False))
+        mean = self._pre_squash(visual, self._actor_view(state))[0]  # (B, A)
+        batch, dims = mean.shape
+        noise_draw = torch.randn(
+            batch, num_candidates - 1, dims, generator=generator, device=self.device
+        )
+        candidates = torch.tanh(
+            torch.cat([mean[:, None], mean[:, None] + noise * noise_draw], dim=1)
+        )  # (B, K, A)
+        latent, _ = self.critic.fuse(visual, self._critic_view(state))
+
+        def repeat(x: torch.Tensor) -> torch.Tensor:
+            return x[:, None].expand(batch, num_candidates, -1).reshape(batch * num_candidates, -1)
+
+        flat = candidates.reshape(batch * num_candidates, dims)
+        critic_state = repeat(self._critic_view(state))
+        q = self._q(self.critic, self.base_critic, repeat(latent), critic_state, flat)
+        best = q.min(dim=0).values.view(batch, num_candidates).argmax(dim=1)
+        action = candidates[torch.arange(batch), best].cpu().numpy()
+        return action[0] if single else action
+
+    @torch.inference_mode()
     def mean_action(self, obs: Mapping[str, Any]) -> np.ndarray:
         """The combined policy's mean before the tanh, (B, A), for a batch of observations:
         what a distilled student regresses (`imitation_loss`)."""
         visual = self.critic.encoder(self._visual(obs, train=False))
         return self._pre_squash(visual, self._actor_view(self._state(obs)))[0].cpu().numpy()
 
-    def imitation_loss(self, obs: Mapping[str, Any], target_mean: torch.Tensor) -> torch.Tensor:
-        """Mean squared error between this policy's pre-squash mean and `target_mean` (B, A),
-        on random crops with view dropout as in training; gradients reach the encoder and the
-        actor (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
+    def imitation_loss(
+        self, obs: Mapping[str, Any], target_mean: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(loss, visual encoding): the mean squared error between this policy's pre-squash
+        mean and `target_mean` (B, A), on random crops with view dropout as in training, and
+        the encoding it was computed from; gradients reach the encoder and the actor
+        (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
         visual_in = self._visual(obs, train=True)
         visual = self.critic.encoder(visual_in, self._view_mask(len(target_mean)))
         mean, _ = self._pre_squash(visual, self._actor_view(self._state(obs)))
-        return torch.mean((mean - target_mean) ** 2)
+        return torch.mean((mean - target_mean) ** 2), visual
 
     # ------------------------------------------------------------------ update
     def update(self, batch: Batch) -> dict[str, float]:

@@ -26,6 +26,7 @@ to the run directory; running the same command again continues after the last fi
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import time
 from dataclasses import dataclass, field
@@ -60,6 +61,8 @@ DISTILL_SEED_BASE = 800_000_000
 # Observation keys the student reads (the teacher also reads `obstacles`).
 STUDENT_KEYS = ("images", "observation", "achieved_goal", "desired_goal")
 STATE_NAME = "student.pt"
+# Numbers per obstacle in the `obstacles` observation (`Obstacles.as_array`).
+POSE_SIZE = 8
 
 
 @dataclass(frozen=True)
@@ -78,6 +81,10 @@ class DistillSettings:
     """Iteration k >= 1: the teacher drives a share teacher_share ** k of the episodes."""
     lr: float = 3e-4
     """Adam learning rate of the student's encoder and actor."""
+    pose_weight: float = 0.0
+    """Weight of an auxiliary loss that regresses the obstacles' true poses from the student's
+    visual encoding (a training-only linear head; the loss takes the best matching of the
+    predicted to the true obstacles, whose order is arbitrary). 0: off."""
     num_eval_episodes: int = 100
     """Validation tasks (`VALIDATION_SEEDS`) scored after each iteration; the best iteration's
     student becomes `policy.pt`."""
@@ -92,6 +99,8 @@ class DistillSettings:
         _require_int("distill.seed", self.seed, 0, 999)
         if not 0 <= self.teacher_share <= 1:
             raise ValueError(f"distill.teacher_share must be in [0, 1], got {self.teacher_share}")
+        if not 0 <= self.pose_weight < float("inf"):
+            raise ValueError(f"distill.pose_weight must be a number >= 0, got {self.pose_weight}")
         if not self.lr > 0:
             raise ValueError(f"distill.lr must be > 0, got {self.lr}")
 
@@ -154,7 +163,13 @@ class Distiller:
         self.student = residual_stage(
             dataclasses.replace(student, loop=dataclasses.replace(student.loop, seed=settings.seed))
         ).make_agent(self.envs[0])
-        params = [*self.student.critic.encoder.parameters(), *self.student.actor.parameters()]
+        num_obstacles = self.envs[0].unwrapped.num_obstacles
+        self.pose_head = torch.nn.Linear(self.student.feature_dim, num_obstacles * POSE_SIZE)
+        params = [
+            *self.student.critic.encoder.parameters(),
+            *self.student.actor.parameters(),
+            *(self.pose_head.parameters() if settings.pose_weight > 0 else ()),
+        ]
         self.optimizer = torch.optim.Adam(params, lr=settings.lr)
         self.rng = np.random.default_rng([settings.seed, 1])
         self.data = _Dataset()
@@ -251,7 +266,12 @@ class Distiller:
         ):
             index = self.rng.integers(0, len(self.data), batch_size)
             obs, labels = self.data.batch(index)
-            loss = self.student.imitation_loss(obs, torch.as_tensor(labels))
+            loss, visual = self.student.imitation_loss(obs, torch.as_tensor(labels))
+            if self.config.distill.pose_weight > 0:
+                poses = torch.as_tensor(self.data.arrays["obstacles"][index])
+                loss = loss + self.config.distill.pose_weight * pose_loss(
+                    self.pose_head(visual).view(poses.shape), poses
+                )
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
@@ -287,6 +307,7 @@ class Distiller:
             "iteration": iteration,
             "student": self.student.state_dict(),
             "optimizer": self.optimizer.state_dict(),
+            "pose_head": self.pose_head.state_dict(),
             "rng": self.rng.bit_generator.state,
             "next_seed": self.next_seed,
             "history": self.history,
@@ -310,6 +331,7 @@ class Distiller:
         state = ckpt.load_torch(path, kind="distill")
         self.student.load_state_dict(state["student"])
         self.optimizer.load_state_dict(state["optimizer"])
+        self.pose_head.load_state_dict(state["pose_head"])
         self.rng.bit_generator.state = state["rng"]
         self.next_seed = state["next_seed"]
         self.history = list(state["history"])
@@ -330,6 +352,16 @@ def _config_json(config: DistillConfig) -> str:
         )
         + "\n"
     )
+
+
+def pose_loss(predicted: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
+    """Mean squared error of predicted obstacle poses (B, N, 8) against the true ones under the
+    best matching per sample (the obstacles' order carries no meaning)."""
+    errors = [
+        ((predicted[:, list(order)] - poses) ** 2).mean(dim=(1, 2))
+        for order in itertools.permutations(range(poses.shape[1]))
+    ]
+    return torch.stack(errors).min(dim=0).values.mean()
 
 
 def _resumable_part(config: dict) -> dict:

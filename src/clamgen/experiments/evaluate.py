@@ -119,16 +119,31 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
 
 
 class SACPolicy:
-    """A trained SAC agent as a `Policy`: deterministic actions (tanh of the mean)."""
+    """A trained SAC agent as a `Policy`: deterministic actions (tanh of the mean), or, with
+    `critic_candidates` > 0 (a stage-2 agent), the best of that many candidates by its critic
+    (`ResidualAgent.act_by_critic`, seeded by `seed` at each reset)."""
 
-    def __init__(self, agent, deterministic: bool = True) -> None:
+    def __init__(
+        self, agent, deterministic: bool = True, critic_candidates: int = 0, seed: int = 0
+    ) -> None:
         self.agent = agent
         self.deterministic = deterministic
+        self.critic_candidates = critic_candidates
+        self.seed = seed
+        self._generator = None
 
     def reset(self, env: Any | None = None) -> None:
-        """Stateless."""
+        """Restart the candidates' random stream, so each episode acts the same every time."""
+        if self.critic_candidates:
+            import torch
+
+            self._generator = torch.Generator().manual_seed(self.seed)
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if self.critic_candidates:
+            if self._generator is None:
+                self.reset()
+            return self.agent.act_by_critic(obs, self.critic_candidates, generator=self._generator)
         return self.agent.act(obs, deterministic=self.deterministic)
 
 
