@@ -251,6 +251,17 @@ def test_arm_keypoints_reach_the_privileged_encoding():
         config(arm_keypoints=True)
 
 
+def test_an_n_step_batch_bootstraps_with_its_own_discount():
+    data = batch(obstacles=True)
+    size = len(data["action"])
+    data["done"] = np.zeros(size, np.float32)
+    agent = ResidualAgent(config(obs_source="obstacles", warmup_updates=0), base_agent())
+    target = agent._td_target(agent._train_inputs({**data, "discount": np.zeros(size, "f4")}))
+    reward = torch.as_tensor(data["reward"]) * agent.config.reward_scale
+    torch.testing.assert_close(target, reward)
+    assert not torch.allclose(agent._td_target(agent._train_inputs(data)), reward)
+
+
 def test_acting_by_the_critic_picks_a_candidate_no_worse_than_the_mean():
     agent = ResidualAgent(config(obs_source="obstacles", warmup_updates=0), base_agent())
     data = batch(obstacles=True)

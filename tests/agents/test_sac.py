@@ -203,3 +203,14 @@ def test_from_spaces_sizes_and_checks() -> None:
 def test_sac_with_her_solves_point_reaching() -> None:
     agent = train(TOY, num_steps=1500, seed=0)
     assert success_rate(agent, num_episodes=50, seed=10_000) >= 0.9
+
+
+def test_an_n_step_batch_bootstraps_with_its_own_discount() -> None:
+    batch = random_batch(np.random.default_rng(0))
+    batch["done"] = np.zeros(16, np.float32)
+    batch["discount"] = np.zeros(16, np.float32)  # nothing bootstrapped: the target is r
+    metrics = SACAgent(SMALL, obs_dim=4, action_dim=2).update(batch)
+    expected = SMALL.reward_scale * batch["reward"].mean()
+    assert metrics["train/target_q_mean"] == pytest.approx(expected, rel=1e-5)
+    one_step = SACAgent(SMALL, obs_dim=4, action_dim=2).update({**batch, "discount": None})
+    assert one_step["train/target_q_mean"] != pytest.approx(expected, rel=1e-5)

@@ -199,3 +199,42 @@ def test_obs_spec_from_space() -> None:
         "observation": ((6,), np.dtype(np.float32)),
         "image": ((2, 4, 4), np.dtype(np.uint8)),
     }
+
+
+def test_n_step_returns_sum_discounted_rewards_and_stop_at_terminal_steps_and_episode_ends():
+    gamma = 0.5
+    buffer = make_buffer(100)
+    buffer.add_episode(labelled_episode(0, 6))  # slots 0..6, never reaches its goal
+    slots = np.array([0, 4, 5])
+    batch = buffer.n_step(buffer.transitions(slots), slots, np.zeros(3, bool), 3, gamma)
+    # Three -0.01 steps from slot 0; two from slot 4 and one from 5, cut by the episode's end.
+    np.testing.assert_allclose(batch["reward"], [-0.01 * 1.75, -0.01 * 1.5, -0.01], rtol=1e-6)
+    np.testing.assert_allclose(batch["discount"], [gamma**3, gamma**2, gamma])
+    np.testing.assert_array_equal(batch["done"], [0, 0, 0])
+    np.testing.assert_array_equal(batch["next_obs"]["observation"][:, 1], [3, 6, 6])
+    # Relabelled to the tip position of observation 2: from slot 0, -0.01 then the success.
+    relabel = np.array([True, False, False])
+    batch = buffer.transitions(slots)
+    batch["obs"]["desired_goal"][0] = buffer.observations("achieved_goal", np.array([2]))[0]
+    batch = buffer.n_step(batch, slots, relabel, 3, gamma)
+    np.testing.assert_allclose(batch["reward"][0], -0.01, rtol=1e-6)
+    assert batch["done"][0] == 1 and batch["discount"][0] == gamma**2
+    np.testing.assert_array_equal(batch["next_obs"]["observation"][0], [0, 2])
+    np.testing.assert_array_equal(batch["next_obs"]["desired_goal"][0], [0, 2, 0])
+
+
+def test_the_pipeline_samples_n_step_returns_only_when_asked():
+    buffer = make_buffer(1000)
+    one = EpisodePipeline(buffer, HindsightConfig(reversible=False, her_ratio=0.5), exact_reward)
+    three = EpisodePipeline(
+        buffer, HindsightConfig(reversible=False, her_ratio=0.5), exact_reward, n_step=3, gamma=0.9
+    )
+    for e in range(5):
+        one.store(labelled_episode(e, 10))
+    assert "discount" not in one.sample(64, np.random.default_rng(0))
+    batch = three.sample(64, np.random.default_rng(0))
+    steps = batch["next_obs"]["observation"][:, 1] - batch["obs"]["observation"][:, 1]
+    assert set(np.unique(steps)) <= {1, 2, 3} and (steps == 3).any()
+    np.testing.assert_allclose(batch["discount"], 0.9**steps, rtol=1e-6)
+    with pytest.raises(ValueError, match="n_step"):
+        ReplayConfig(n_step=0)

@@ -312,6 +312,7 @@ class _TrainInputs:
     collided: torch.Tensor  # (B,)
     demonstration: torch.Tensor  # (B,) 1 for a teacher's transitions
     view_mask: torch.Tensor | None  # (B, V) bool, True = view kept
+    discount: torch.Tensor | float  # (B,) gamma ** steps of n-step returns, or gamma
 
 
 class ResidualNetworks(nn.Module):
@@ -559,6 +560,7 @@ class ResidualAgent:
                 else torch.zeros(len(batch["action"]), device=device)
             ),
             view_mask=self._view_mask(len(batch["action"])),
+            discount=tensor("discount") if "discount" in batch else self.config.gamma,
         )
 
     # ------------------------------------------------------------ the pieces
@@ -734,7 +736,8 @@ class ResidualAgent:
         return metrics
 
     def _td_target(self, x: _TrainInputs) -> torch.Tensor:
-        """r + gamma (1 - done) (min_i Q_target_i(s', a') - alpha log pi(a' | s')), a' ~ pi."""
+        """r + gamma (1 - done) (min_i Q_target_i(s', a') - alpha log pi(a' | s')), a' ~ pi
+        (n-step returns: r summed over the steps and gamma ** steps for gamma)."""
         cfg = self.config
         with torch.no_grad():
             next_visual, _ = self._encode(x.next_visual_in, x.view_mask)
@@ -748,7 +751,7 @@ class ResidualAgent:
             )
             alpha = self.log_alpha.exp()
             soft_value = next_q.min(0).values - alpha * next_log_prob
-            return cfg.reward_scale * x.reward + cfg.gamma * (1 - x.done) * soft_value
+            return cfg.reward_scale * x.reward + x.discount * (1 - x.done) * soft_value
 
     def _update_critic(self, latent, aux: AuxInputs, x: _TrainInputs) -> dict[str, float]:
         """The TD loss plus every weighted auxiliary loss, one optimiser step."""

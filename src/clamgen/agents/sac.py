@@ -280,7 +280,10 @@ class SACAgent:
         if self.config.normalize_obs:
             self.normalizer.update(obs)
         obs, next_obs = self._normalize(obs), self._normalize(next_obs)
-        metrics = self._update_critic(obs, action, reward, next_obs, done)
+        discount = batch.get("discount")
+        if discount is not None:  # n-step returns: gamma ** steps per transition
+            discount = torch.as_tensor(discount, dtype=torch.float32, device=self.device)
+        metrics = self._update_critic(obs, action, reward, next_obs, done, discount)
         metrics |= self._update_actor_and_temperature(obs)
         soft_update(self.critic_target, self.critic, self.config.tau)
         self.num_updates += 1
@@ -307,6 +310,7 @@ class SACAgent:
         reward: torch.Tensor,
         next_obs: torch.Tensor,
         done: torch.Tensor,
+        discount: torch.Tensor | None = None,
     ) -> dict[str, float]:
         cfg = self.config
         alpha = self.log_alpha.detach().exp()
@@ -314,7 +318,8 @@ class SACAgent:
             next_action, next_log_prob = self.actor.sample(next_obs, self._generator)
             next_q = self.critic_target(next_obs, next_action).min(0).values
             next_value = next_q - alpha * next_log_prob
-            target_q = cfg.reward_scale * reward + cfg.gamma * (1.0 - done) * next_value
+            discount = cfg.gamma if discount is None else discount
+            target_q = cfg.reward_scale * reward + discount * (1.0 - done) * next_value
         q = self.critic(obs, action)
         # Paper Eq. (critic_loss), summed over the two Q-networks.
         critic_loss = 0.5 * (q - target_q).pow(2).mean(1).sum()

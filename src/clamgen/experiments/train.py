@@ -225,6 +225,8 @@ class Trainer:
             probe.unwrapped.compute_reward,
             compute_terminated,
             rerender=rerender,
+            n_step=config.replay.n_step,
+            gamma=config.agent.gamma,
         )
         self.rng = np.random.default_rng(loop.seed)
         self.teacher_rng = np.random.default_rng([loop.seed, TEACHER_STREAM])

@@ -57,6 +57,11 @@ class ReplayConfig:
     reversible_her: bool = True
     """Add the paper's reversible-HER forward and reversed episodes of every failed episode
     (applied by the episode pipeline when the episode is stored)."""
+    n_step: int = 1
+    """Beyond the paper: n-step returns, the discounted reward of up to this many steps of
+    the stored episode (after relabelling) before bootstrapping (Sutton 1988; Rainbow, R2D2).
+    The sparse reward then reaches states n steps before a success in one update. 1: the
+    paper's one-step target."""
     max_memory_fraction: float = 0.8
     """Refuse a capacity whose arrays need more than this fraction of the available memory."""
 
@@ -65,6 +70,8 @@ class ReplayConfig:
             raise ValueError("capacity must hold at least one step (two observations)")
         if not 0.0 <= self.her_ratio <= 1.0:
             raise ValueError(f"her_ratio must be in [0, 1], got {self.her_ratio}")
+        if isinstance(self.n_step, bool) or not isinstance(self.n_step, int) or self.n_step < 1:
+            raise ValueError(f"replay.n_step must be an integer >= 1, got {self.n_step!r}")
 
 
 def obs_spec_from_space(
@@ -358,6 +365,50 @@ class ReplayBuffer:
             collision=self._collision[slots].astype(np.float32),
             demonstration=self._demonstration[slots].astype(np.float32),
         )
+
+    def n_step(
+        self, batch: Batch, slots: np.ndarray, relabel: np.ndarray, n: int, gamma: float
+    ) -> Batch:
+        """`batch` (the transitions at `slots`, `relabel` marking those given a new goal, which
+        their `obs` holds) turned into n-step transitions, in place: the reward is the
+        discounted sum over up to `n` steps of the episode, stopping after a terminal step or
+        at the episode's end; `next_obs` is the observation where it stopped; `discount` is
+        gamma ** (steps summed), which the learner uses in place of gamma. A relabelled
+        transition keeps its goal all along; the others follow the recorded goal of each step
+        (a moving target is where it was)."""
+        goal = batch["obs"][DESIRED_GOAL]
+        size = len(slots)
+        total = np.zeros(size, np.float64)
+        done = np.zeros(size, bool)
+        steps = np.zeros(size, np.int64)
+        alive = np.ones(size, bool)
+        for k in range(n):
+            current = slots + k
+            alive &= current < self._last[slots]  # transition `current` is in the episode
+            rows = np.flatnonzero(alive)
+            if len(rows) == 0:
+                break
+            after = current[rows] + 1
+            desired = np.where(relabel[rows, None], goal[rows], self._obs[DESIRED_GOAL][after])
+            reward, terminal = reward_and_done(
+                self._obs[ACHIEVED_GOAL][after],
+                desired,
+                self._collision[current[rows]],
+                self.compute_reward,
+                self.compute_terminated,
+            )
+            total[rows] += gamma**k * reward
+            steps[rows] += 1
+            done[rows] = terminal > 0
+            alive[rows] &= terminal == 0
+        ends = slots + steps
+        next_obs = {key: array[ends] for key, array in self._obs.items()}
+        next_obs[DESIRED_GOAL][relabel] = goal[relabel]
+        batch["reward"] = total.astype(np.float32)
+        batch["done"] = done.astype(np.float32)
+        batch["next_obs"] = next_obs
+        batch["discount"] = (gamma**steps).astype(np.float32)
+        return batch
 
     def episode_bounds(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """First and last slot of the episode of each of `slots`, each (N,) int64."""

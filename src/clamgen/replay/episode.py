@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -46,6 +46,9 @@ class Batch(TypedDict):
     demonstration: np.ndarray
     """Whether the transition comes from a teacher's episode, (N,) float32 in {0, 1} (the
     transitions a behaviour-cloning term imitates)."""
+    discount: NotRequired[np.ndarray]
+    """With n-step returns only: the factor on the bootstrapped value, gamma ** steps, (N,)
+    float32 (absent: gamma)."""
 
 
 @dataclass(frozen=True)

@@ -58,6 +58,8 @@ class EpisodePipeline:
         rerender: a :class:`~clamgen.replay.rerender.RerenderWorker` for image observations
             (relabelled episodes are re-rendered before they are stored); None stores them as
             they are, which is right only when no observation shows the goal.
+        n_step, gamma: sampled batches hold n-step returns discounted by gamma
+            (`ReplayBuffer.n_step`); n_step 1 leaves them one-step.
     """
 
     def __init__(
@@ -67,12 +69,16 @@ class EpisodePipeline:
         compute_reward: RewardFn,
         compute_terminated: TerminatedFn | None = None,
         rerender: Any | None = None,
+        n_step: int = 1,
+        gamma: float = 1.0,
     ) -> None:
         self.buffer = buffer
         self.hindsight = hindsight
         self.compute_reward = compute_reward
         self.compute_terminated = compute_terminated
         self.rerender = rerender
+        self.n_step = n_step
+        self.gamma = gamma
 
     def relabel(self, episode: Episode) -> tuple[Episode, ...]:
         """The extra episodes hindsight makes of `episode` when it is stored (pure)."""
@@ -120,7 +126,10 @@ class EpisodePipeline:
             self.hindsight.her_strategy, slots[relabel], first, last, rng
         )
         goals = self.buffer.observations(ACHIEVED_GOAL, goal_slots)
-        return with_goals(batch, relabel, goals, self.compute_reward, self.compute_terminated)
+        batch = with_goals(batch, relabel, goals, self.compute_reward, self.compute_terminated)
+        if self.n_step > 1:
+            batch = self.buffer.n_step(batch, slots, relabel, self.n_step, self.gamma)
+        return batch
 
     def metrics(self) -> dict[str, float]:
         """The re-rendering worker's throughput, latency and backlog (empty without one)."""
