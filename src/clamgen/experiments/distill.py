@@ -73,15 +73,15 @@ class DistillSettings:
     """Policy file of a privileged residual (`--agent.obs-source obstacles`), the teacher."""
     iterations: int = 6
     """DAgger iterations (iteration 0 is driven by the teacher)."""
-    episodes_per_iteration: int = 200
+    episodes_per_iteration: int = 300
     """Training episodes collected per iteration."""
-    updates_per_iteration: int = 3000
+    updates_per_iteration: int = 4000
     """Regression steps on all data so far after each iteration."""
     teacher_share: float = 0.5
     """Iteration k >= 1: the teacher drives a share teacher_share ** k of the episodes."""
     lr: float = 3e-4
     """Adam learning rate of the student's encoder and actor."""
-    pose_weight: float = 0.0
+    pose_weight: float = 1.0
     """Weight of an auxiliary loss that regresses the obstacles' true poses from the student's
     visual encoding (a training-only linear head; the loss takes the best matching of the
     predicted to the true obstacles, whose order is arbitrary). 0: off."""
