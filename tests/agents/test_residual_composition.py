@@ -177,8 +177,18 @@ def test_bf16_convs_stay_close_to_float32():
     assert (a - b).abs().max() < 0.05  # tanh-bounded features, bf16's 8-bit mantissa
 
 
-@pytest.mark.parametrize("name", ["residual-2views", "image-only"])
-def test_shipped_policies_act_as_before_the_rebuild(name):
+@pytest.mark.parametrize(
+    ("name", "policy_file"),
+    [
+        # The RL-trained 2-view residual shipped before the distilled one replaced it.
+        (
+            "residual-2views",
+            Path(__file__).resolve().parent.parent / "data" / "residual-2views-rl.pt",
+        ),
+        ("image-only", "image-only"),
+    ],
+)
+def test_shipped_policies_act_as_before_the_rebuild(name, policy_file):
     """Actions recorded with the agent before it was rebuilt by composition, on fixed
     rendered observations."""
     from clamgen.experiments.policies import resolve_policy_path
@@ -190,7 +200,7 @@ def test_shipped_policies_act_as_before_the_rebuild(name):
         for key in recorded.files
         if key.startswith(f"{name}/obs/")
     }
-    agent, _ = load_residual_agent(resolve_policy_path(name))
+    agent, _ = load_residual_agent(resolve_policy_path(policy_file))
     np.testing.assert_allclose(
         agent.act(obs, deterministic=True), recorded[f"{name}/action"], atol=2e-5
     )
