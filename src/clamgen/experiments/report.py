@@ -40,6 +40,8 @@ from clamgen.experiments.tables import (
     table2_markdown,
 )
 
+# Columns of a family figure's legend (row names are long).
+LEGEND_COLUMNS = 3
 CURVE_METRIC = "eval/success_rate"
 # Task families, one figure and one aggregate table each; conditions are what a run's score
 # is split over (Table 1: the target speeds; Table 2: one family each).
@@ -476,9 +478,11 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
     profile_ax.set_ylim(-0.02, 1.02)
     profile_ax.grid(alpha=0.3)
     handles = [plt.Line2D([], [], color=colours[r], lw=3) for r in result.rows]
-    fig.legend(handles, result.rows, loc="lower center", ncol=min(4, n), fontsize=8,
+    # Three columns: four of the longest row names overflow the figure's width.
+    columns = min(LEGEND_COLUMNS, n)
+    fig.legend(handles, result.rows, loc="lower center", ncol=columns, fontsize=8,
                frameon=False)  # fmt: skip
-    legend_rows = int(np.ceil(n / min(4, n)))
+    legend_rows = int(np.ceil(n / columns))
     fig.tight_layout(rect=(0, 0.04 + 0.035 * legend_rows, 1, 1))
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)

@@ -1,0 +1,92 @@
+"""Acting latency of the shipped vision policies on one core, against a reference in the run.
+
+Each policy acts at batch 1 (deterministic: the tanh of the mean, as in every table) on
+observations rendered from its own cameras, with one torch thread. The reference is the
+RL-trained 2-view residual shipped before the distilled ones (`tests/data/residual-2views-rl.pt`,
+the same architecture as `residual-2views`), timed interleaved in blocks with the others so
+that load from other processes affects all alike. The blocked-path issue's aim: under 2 ms a
+step on one core.
+
+    python benchmarks/act_latency.py [--num-calls 400]
+
+Prints each policy's median and 95th-percentile act time and its ratio to the reference's
+median; writes results/benchmarks/act_latency.csv.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import write_csv
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import TRAINING_SEEDS
+from clamgen.experiments.policies import load_policy
+
+ROOT = Path(__file__).resolve().parent.parent
+REFERENCE = ("RL 2-view residual (reference)", str(ROOT / "tests/data/residual-2views-rl.pt"))
+POLICIES = (
+    ("residual-3views", "residual-3views"),
+    ("residual-2views", "residual-2views"),
+    ("residual-1view", "residual-1view"),
+    REFERENCE,
+)
+BLOCK = 50  # calls of one policy before switching to the next
+NUM_OBSERVATIONS = 20
+FIRST_SEED = TRAINING_SEEDS.start + 7_500_000  # training seeds no run resets with by default
+AIM_MS = 2.0
+
+
+def observations(env_kwargs: dict) -> list[dict]:
+    env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
+    obs = [env.reset(seed=FIRST_SEED + i)[0] for i in range(NUM_OBSERVATIONS)]
+    env.close()
+    return obs
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--num-calls", type=int, default=400, help="act calls per policy")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    loaded = {}
+    for label, name in POLICIES:
+        policy, _, env_kwargs = load_policy(name)
+        loaded[label] = (policy, observations(env_kwargs))
+    times: dict[str, list[float]] = {label: [] for label in loaded}
+    for start in range(0, args.num_calls, BLOCK):
+        for label, (policy, obs) in loaded.items():
+            for i in range(start, min(start + BLOCK, args.num_calls)):
+                tic = time.perf_counter()
+                policy.act(obs[i % len(obs)])
+                times[label].append(time.perf_counter() - tic)
+    reference = float(np.median(times[REFERENCE[0]])) * 1e3
+    rows = []
+    for label, values in times.items():
+        ms = np.asarray(values) * 1e3
+        row = {
+            "policy": label,
+            "median_ms": round(float(np.median(ms)), 4),
+            "p95_ms": round(float(np.percentile(ms, 95)), 4),
+            "ratio_to_reference": round(float(np.median(ms)) / reference, 3),
+            "under_aim": bool(np.median(ms) < AIM_MS),
+        }
+        rows.append(row)
+        print(
+            f"{label:34s} median {row['median_ms']:.3f} ms  p95 {row['p95_ms']:.3f} ms  "
+            f"x{row['ratio_to_reference']:.2f} of the reference  "
+            f"({'under' if row['under_aim'] else 'over'} the {AIM_MS} ms aim)"
+        )
+    print("wrote", write_csv("act_latency", rows))
+
+
+if __name__ == "__main__":
+    main()
