@@ -8,6 +8,8 @@ saves it from learning the kinematics first. The points are a function of the jo
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from clamgen.robot.ur5 import DH_A, DH_ALPHA, DH_D, GRIPPER_TIP_OFFSET_M, NUM_JOINTS
@@ -24,7 +26,7 @@ NUM_ARM_KEYPOINTS = NUM_JOINTS + 1 + len(_LONG_LINKS) * len(LONG_LINK_FRACTIONS)
 def _dh(theta: torch.Tensor, d: float, a: float, alpha: float) -> torch.Tensor:
     """Standard DH transforms Rz(theta) Tz(d) Tx(a) Rx(alpha), (B, 4, 4)."""
     ct, st = torch.cos(theta), torch.sin(theta)
-    ca, sa = float(torch.cos(torch.tensor(alpha))), float(torch.sin(torch.tensor(alpha)))
+    ca, sa = math.cos(alpha), math.sin(alpha)
     zero, one = torch.zeros_like(theta), torch.ones_like(theta)
     rows = (
         (ct, -st * ca, st * sa, a * ct),
