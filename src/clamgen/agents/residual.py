@@ -641,9 +641,7 @@ class ResidualAgent:
     def act(self, obs: Mapping[str, Any], deterministic: bool = False) -> np.ndarray:
         """Action (A,) or (B, A) for one observation or a batch (dict with the low-dim keys and
         `images` (or `obstacles`))."""
-        single = np.asarray(obs["desired_goal"]).ndim == 1
-        if single:
-            obs = {k: np.asarray(v)[None] for k, v in obs.items()}
+        obs, single = _as_batch(obs)
         low_dim = self._actor_view(self._state(obs))
         visual = self.critic.encoder(self._visual(obs, train=False))
         if deterministic:
@@ -667,9 +665,7 @@ class ResidualAgent:
         local gradient, as a potential field does, and can settle where every small step looks
         worse; candidates farther out let the critic pick a way around (QT-Opt acts by
         sampling Q's argmax, Kalashnikov et al. 2018). One observation or a batch, as `act`."""
-        single = np.asarray(obs["desired_goal"]).ndim == 1
-        if single:
-            obs = {k: np.asarray(v)[None] for k, v in obs.items()}
+        obs, single = _as_batch(obs)
         state = self._state(obs)
         visual = self.critic.encoder(self._visual(obs, train=False))
         mean = self._pre_squash(visual, self._actor_view(state))[0]  # (B, A)
@@ -870,6 +866,14 @@ def _demonstration_mse(mean_action, action, demonstration) -> torch.Tensor:
     action, averaged over the demonstration transitions (0 when the batch has none)."""
     squared = (mean_action - action).square().sum(-1)
     return (squared * demonstration).sum() / demonstration.sum().clamp(min=1.0)
+
+
+def _as_batch(obs: Mapping[str, Any]) -> tuple[Mapping[str, Any], bool]:
+    """(a batch of observations, whether `obs` was a single one, now a batch of 1)."""
+    single = np.asarray(obs["desired_goal"]).ndim == 1
+    if single:
+        obs = {k: np.asarray(v)[None] for k, v in obs.items()}
+    return obs, single
 
 
 def _identity(x):

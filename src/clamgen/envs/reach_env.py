@@ -283,10 +283,7 @@ class ReachEnv(gym.Env):
         array of the leading shape, or a sequence of step-info dicts (as HER buffers pass).
         Returns float32 rewards of the leading shape.
         """
-        distance = np.linalg.norm(
-            np.asarray(achieved_goal, np.float64) - np.asarray(desired_goal, np.float64), axis=-1
-        )
-        reward = np.where(distance < SUCCESS_DISTANCE_M, 0.0, -STEP_PENALTY)
+        reward = np.where(_reached(achieved_goal, desired_goal), 0.0, -STEP_PENALTY)
         collision = _collision_flags(info, reward.shape)
         if collision is not None:
             reward = reward - self._collision_penalty * collision
@@ -297,10 +294,7 @@ class ReachEnv(gym.Env):
     ) -> np.ndarray:
         """Vectorised terminal flags for (relabelled) goals; agrees with `step`: success, or a
         collision when `collision_ends_episode`. Arguments as `compute_reward`; bool array."""
-        distance = np.linalg.norm(
-            np.asarray(achieved_goal, np.float64) - np.asarray(desired_goal, np.float64), axis=-1
-        )
-        done = distance < SUCCESS_DISTANCE_M
+        done = _reached(achieved_goal, desired_goal)
         collision = _collision_flags(info, done.shape)
         if self.collision_ends_episode and collision is not None:
             done = done | collision.astype(bool)
@@ -403,6 +397,14 @@ def _integer(name: str, value: Any, low: int, high: int | None = None) -> int:
     if isinstance(value, bool) or not whole or value < low or (high is not None and value > high):
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
     return int(value)
+
+
+def _reached(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
+    """Whether each achieved goal is within `SUCCESS_DISTANCE_M` of its desired goal, (...)."""
+    distance = np.linalg.norm(
+        np.asarray(achieved_goal, np.float64) - np.asarray(desired_goal, np.float64), axis=-1
+    )
+    return distance < SUCCESS_DISTANCE_M
 
 
 def _collision_flags(info: Any, shape: tuple[int, ...]) -> np.ndarray | None:

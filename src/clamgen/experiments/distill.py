@@ -45,12 +45,7 @@ from clamgen.experiments.config import (
     config_to_json,
 )
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
-from clamgen.experiments.stage2 import (
-    RESIDUAL_POLICY_KIND,
-    Stage2Config,
-    load_residual_agent,
-    residual_stage,
-)
+from clamgen.experiments.stage2 import Stage2Config, load_residual_agent, residual_stage
 from clamgen.experiments.train import POLICY_NAME, make_env
 
 # Teacher labels: pre-squash means clipped to this (tanh(3) = 0.995, a saturated step).
@@ -120,12 +115,13 @@ class _Dataset:
     """The aggregated (student input, teacher label) pairs, in growing numpy arrays."""
 
     def __init__(self) -> None:
-        self.chunks: list[dict[str, np.ndarray]] = []
         self.arrays: dict[str, np.ndarray] = {}
 
     def add(self, chunk: dict[str, np.ndarray]) -> None:
-        self.chunks.append(chunk)
-        self.arrays = {k: np.concatenate([c[k] for c in self.chunks]) for k in chunk}
+        if not self.arrays:
+            self.arrays = dict(chunk)
+            return
+        self.arrays = {k: np.concatenate([self.arrays[k], chunk[k]]) for k in chunk}
 
     def __len__(self) -> int:
         return len(self.arrays.get("label", ()))
@@ -160,9 +156,10 @@ class Distiller:
         collect = dataclasses.replace(student.env, include_obstacle_state=True)
         self.envs = [make_env(collect, training=True) for _ in range(student.env.num_envs)]
         self.eval_env = make_env(student.env)
-        self.student = residual_stage(
+        self.stage = residual_stage(
             dataclasses.replace(student, loop=dataclasses.replace(student.loop, seed=settings.seed))
-        ).make_agent(self.envs[0])
+        )
+        self.student = self.stage.make_agent(self.envs[0])
         num_obstacles = self.envs[0].unwrapped.num_obstacles
         self.pose_head = torch.nn.Linear(self.student.feature_dim, num_obstacles * POSE_SIZE)
         params = [
@@ -285,16 +282,14 @@ class Distiller:
     # --------------------------------------------------------------- files
     def _payload(self, iteration: int) -> dict[str, Any]:
         state = self.student.state_dict()
-        base_config = dataclasses.asdict(self.student.base.config)
         return {
             "format": ckpt.FORMAT,
-            "kind": RESIDUAL_POLICY_KIND,
+            "kind": self.stage.policy_kind,
             "config": config_to_json(self.config.student),
             "env_steps": len(self.data),
             "distill_iteration": iteration,
             "agent": {k: state[k] for k in self.student.policy_state_keys()},
-            "base_config": base_config,
-            "action_dim": self.student.action_dim,
+            **self.stage.policy_extras(self.student),
         }
 
     def _save(self, iteration: int, success: float) -> None:
