@@ -144,3 +144,22 @@ def test_the_pose_loss_ignores_the_order_of_the_obstacles():
     poses = torch.arange(2 * 2 * 8, dtype=torch.float32).view(2, 2, 8)
     assert float(pose_loss(poses.flip(1), poses)) == 0.0
     assert float(pose_loss(poses + 1, poses)) == 1.0
+
+
+def test_a_lookahead_teacher_labels_with_its_plans_and_reports_their_cost(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    config = distill_config(
+        tmp_path, base_policy, teacher, lookahead_candidates=3, lookahead_horizon=6
+    )
+    distiller = Distiller(config)
+    summary = distiller.run(show_progress=False)
+    first, second = summary["iterations"]
+    assert first["teacher_success"] is not None and first["rollout_success"] is None
+    assert first["lookahead_rollouts"] >= 3  # at least one rollout per episode
+    assert second["lookahead_rollouts"] > 0
+    assert np.abs(distiller.data.arrays["label"]).max() <= TARGET_CLIP
+    with pytest.raises(ValueError, match=r"distill\.lookahead_horizon"):
+        DistillSettings(lookahead_horizon=0)

@@ -20,6 +20,7 @@ import torch
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
 from clamgen.experiments.policies import load_policy, policy_label
 from clamgen.experiments.tables import wilson_interval
 
@@ -40,6 +41,15 @@ def main() -> None:
         default=0,
         help="act by the critic's best of this many candidate actions (0: the policy's mean)",
     )
+    parser.add_argument(
+        "--lookahead",
+        type=int,
+        default=0,
+        help="plan with this many candidate rollouts in the simulator before each step "
+        "(clamgen.experiments.lookahead; privileged policies only; 0: off)",
+    )
+    parser.add_argument("--lookahead-horizon", type=int, default=40)
+    parser.add_argument("--lookahead-noise", type=float, default=1.0)
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:
@@ -50,6 +60,19 @@ def main() -> None:
         label = policy_label(name) + (" (stochastic)" if args.stochastic else "")
         if args.critic_candidates:
             label += f" (critic, {args.critic_candidates} candidates)"
+        if args.lookahead:
+            teacher = LookaheadTeacher(
+                policy.agent,
+                num_obstacles=2,
+                candidates=args.lookahead,
+                horizon=args.lookahead_horizon,
+                noise=args.lookahead_noise,
+            )
+            policy = LookaheadPolicy(teacher)
+            label += (
+                f" (lookahead {args.lookahead} x {args.lookahead_horizon}, "
+                f"noise {args.lookahead_noise})"
+            )
         score(policy, label, source, env_kwargs, args.num_tasks, args.families)
 
 

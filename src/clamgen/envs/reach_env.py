@@ -330,6 +330,11 @@ class ReachEnv(gym.Env):
         if state.task is not None:
             self._task = state.task
 
+    def observe(self) -> dict[str, np.ndarray]:
+        """The observation of the current state (what `reset` or `step` would return here),
+        e.g. after `set_state`."""
+        return self._observation()
+
     def render_images(
         self,
         joints: np.ndarray,

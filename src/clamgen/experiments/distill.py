@@ -45,6 +45,7 @@ from clamgen.experiments.config import (
     config_to_json,
 )
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
+from clamgen.experiments.lookahead import LookaheadTeacher
 from clamgen.experiments.stage2 import Stage2Config, load_residual_agent, residual_stage
 from clamgen.experiments.train import POLICY_NAME, make_env
 
@@ -83,6 +84,16 @@ class DistillSettings:
     num_eval_episodes: int = 100
     """Validation tasks (`VALIDATION_SEEDS`) scored after each iteration; the best iteration's
     student becomes `policy.pt`."""
+    lookahead_candidates: int = 0
+    """> 0: the teacher plans before each label with rollouts of itself in the simulator, this
+    many perturbed plans when its current plan does not arrive cleanly
+    (`clamgen.experiments.lookahead`); 0: the teacher's own action."""
+    lookahead_horizon: int = 40
+    """Steps per lookahead rollout."""
+    lookahead_noise: float = 1.0
+    """Standard deviation of the lookahead's plan offsets (pre-squash units)."""
+    lookahead_segments: int = 2
+    """Pieces of constant offset along a lookahead plan."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -92,6 +103,13 @@ class DistillSettings:
             _require_int(f"distill.{name}", getattr(self, name), 1)
         _require_int("distill.updates_per_iteration", self.updates_per_iteration, 0)
         _require_int("distill.seed", self.seed, 0, 999)
+        _require_int("distill.lookahead_candidates", self.lookahead_candidates, 0)
+        _require_int("distill.lookahead_horizon", self.lookahead_horizon, 1)
+        _require_int("distill.lookahead_segments", self.lookahead_segments, 1)
+        if not 0 <= self.lookahead_noise < float("inf"):
+            raise ValueError(
+                f"distill.lookahead_noise must be a number >= 0, got {self.lookahead_noise}"
+            )
         if not 0 <= self.teacher_share <= 1:
             raise ValueError(f"distill.teacher_share must be in [0, 1], got {self.teacher_share}")
         if not 0 <= self.pose_weight < float("inf"):
@@ -161,6 +179,19 @@ class Distiller:
         )
         self.student = self.stage.make_agent(self.envs[0])
         num_obstacles = self.envs[0].unwrapped.num_obstacles
+        self.lookahead = (
+            LookaheadTeacher(
+                self.teacher,
+                num_obstacles,
+                candidates=settings.lookahead_candidates,
+                horizon=settings.lookahead_horizon,
+                noise=settings.lookahead_noise,
+                segments=settings.lookahead_segments,
+                seed=settings.seed,
+            )
+            if settings.lookahead_candidates
+            else None
+        )
         self.pose_head = torch.nn.Linear(self.student.feature_dim, num_obstacles * POSE_SIZE)
         params = [
             *self.student.critic.encoder.parameters(),
@@ -182,7 +213,7 @@ class Distiller:
         for iteration in range(start, settings.iterations):
             tic = time.perf_counter()
             share = 1.0 if iteration == 0 else settings.teacher_share**iteration
-            chunk, rollout = self._collect(share, iteration, show_progress)
+            chunk, stats = self._collect(share, iteration, show_progress)
             ckpt.save_npz(self.run_dir / "data" / f"iteration{iteration}.npz", chunk)
             self.data.add(chunk)
             loss = self._regress(settings.updates_per_iteration, iteration, show_progress)
@@ -191,7 +222,7 @@ class Distiller:
                 "iteration": iteration,
                 "teacher_share": share,
                 "samples": len(self.data),
-                "rollout_success": rollout,
+                **stats,
                 "loss": loss,
                 **{f"validation/{k}": v for k, v in scores.items()},
                 "seconds": time.perf_counter() - tic,
@@ -206,18 +237,28 @@ class Distiller:
 
     def _collect(self, share: float, iteration: int, show_progress: bool):
         """`episodes_per_iteration` episodes, the teacher driving each with probability
-        `share`; every state labelled by the teacher. (chunk of arrays, the student-driven
-        episodes' success rate or None)."""
+        `share`; every state labelled by the teacher (with lookahead, when configured).
+        (chunk of arrays, stats): the stats are the success rates (reached, never collided) of
+        the student-driven (`rollout_success`) and teacher-driven episodes (None: none such),
+        and the lookahead's rollouts and searches."""
         wanted = self.config.distill.episodes_per_iteration
         rows: dict[str, list[np.ndarray]] = {k: [] for k in (*STUDENT_KEYS, "obstacles", "label")}
         driver = [False] * len(self.envs)
         obs = [self._reset(i, share, driver) for i in range(len(self.envs))]
-        started, finished, student_outcomes = len(self.envs), 0, []
+        started, finished = len(self.envs), 0
+        outcomes: dict[bool, list[bool]] = {True: [], False: []}  # by driver: teacher?
         bar = tqdm(total=wanted, desc=f"iteration {iteration} episodes", disable=not show_progress)
         active = list(range(len(self.envs)))
+        plans: list = [None] * len(self.envs)
+        collided = [False] * len(self.envs)
+        if self.lookahead is not None:
+            counts = (self.lookahead.rollouts, self.lookahead.searches)
         while active:
             batch = {k: np.stack([obs[i][k] for i in active]) for k in obs[active[0]]}
-            labels = np.clip(self.teacher.mean_action(batch), -TARGET_CLIP, TARGET_CLIP)
+            if self.lookahead is None:
+                labels = np.clip(self.teacher.mean_action(batch), -TARGET_CLIP, TARGET_CLIP)
+            else:
+                labels = self._plan_labels(active, obs, plans)
             if all(driver[i] for i in active):
                 student = labels  # not acted on: the teacher drives every episode
             else:
@@ -228,23 +269,46 @@ class Distiller:
             still = []
             for j, i in enumerate(active):
                 action = np.tanh(labels[j]) if driver[i] else student[j]
+                if not driver[i] and plans[i] is not None:
+                    plans[i] = (plans[i][0], False)  # off the plan's path: check it again
                 obs[i], _, terminated, truncated, info = self.envs[i].step(action)
+                collided[i] |= bool(info["collision"])
                 if not (terminated or truncated):
                     still.append(i)
                     continue
                 finished += 1
                 bar.update()
-                if not driver[i]:
-                    student_outcomes.append(bool(info["is_success"]))
+                outcomes[driver[i]].append(bool(info["is_success"]) and not collided[i])
                 if started < wanted:
                     obs[i] = self._reset(i, share, driver)
+                    plans[i], collided[i] = None, False
                     started += 1
                     still.append(i)
             active = still
         bar.close()
         chunk = {k: np.concatenate(v) for k, v in rows.items()}
-        rollout = float(np.mean(student_outcomes)) if student_outcomes else None
-        return chunk, rollout
+        stats = {
+            "rollout_success": float(np.mean(outcomes[False])) if outcomes[False] else None,
+            "teacher_success": float(np.mean(outcomes[True])) if outcomes[True] else None,
+        }
+        if self.lookahead is not None:
+            stats["lookahead_rollouts"] = self.lookahead.rollouts - counts[0]
+            stats["lookahead_searches"] = self.lookahead.searches - counts[1]
+        return chunk, stats
+
+    def _plan_labels(self, active: list[int], obs: list[dict], plans: list) -> np.ndarray:
+        """The lookahead teacher's labels (len(active), A) for the active envs' states; each
+        env's (plan, known_clean) in `plans` (None: a new episode) moves on by one step."""
+        labels = []
+        for i in active:
+            plan, known_clean = plans[i] if plans[i] is not None else (None, False)
+            if plan is None:
+                plan = self.lookahead.new_plan()
+            state = self.envs[i].unwrapped.get_state()
+            label, plan, known_clean = self.lookahead.act(state, obs[i], plan, known_clean)
+            plans[i] = (plan, known_clean)
+            labels.append(label)
+        return np.stack(labels)
 
     def _reset(self, i: int, share: float, driver: list[bool]) -> dict[str, np.ndarray]:
         seed = self.next_seed
@@ -306,6 +370,7 @@ class Distiller:
             "rng": self.rng.bit_generator.state,
             "next_seed": self.next_seed,
             "history": self.history,
+            "lookahead_rng": self.lookahead.rng.bit_generator.state if self.lookahead else None,
         }
         ckpt.save_torch(
             self.run_dir / STATE_NAME, {"format": ckpt.FORMAT, "kind": "distill", **state}
@@ -330,6 +395,8 @@ class Distiller:
         self.rng.bit_generator.state = state["rng"]
         self.next_seed = state["next_seed"]
         self.history = list(state["history"])
+        if self.lookahead is not None and state.get("lookahead_rng") is not None:
+            self.lookahead.rng.bit_generator.state = state["lookahead_rng"]
         for iteration in range(state["iteration"] + 1):
             self.data.add(ckpt.load_npz(self.run_dir / "data" / f"iteration{iteration}.npz"))
         print(f"resumed after iteration {state['iteration']} ({len(self.data)} samples)")

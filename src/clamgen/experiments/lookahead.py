@@ -1,0 +1,224 @@
+"""A privileged teacher that looks ahead in the simulator before it acts (beyond the paper).
+
+The privileged residual acts in one forward pass; on blocked-path tasks it still collides or
+stalls on about a quarter of them (`results/stage2/tune/README.md`). A teacher for
+distillation need not act fast and may use the simulator itself, so this one plans:
+
+1. it keeps a plan per episode: offsets (horizon, 6) added to the residual's pre-squash mean,
+   all zero at the start (the residual's own behaviour);
+2. before each step it rolls the residual, with the plan's offsets, forward in a copy of the
+   simulator (true obstacles, true contact) until it reaches the goal, collides, or runs out
+   of horizon;
+3. if that rollout reaches the goal without a collision, it keeps the plan; if not, it rolls
+   out `candidates` perturbed plans (the plan, and no plan, plus piecewise-constant Gaussian
+   offsets in `segments` pieces) and keeps the best: a collision-free arrival, the earliest
+   first; then no collision, the closest final distance; a collision last;
+4. it acts (or labels, for the student) with the residual's mean plus the plan's first offset,
+   and shifts the plan by one step.
+
+The rollouts are closed-loop: the residual still reacts to each state, the offsets only bend
+it. Since the simulator is deterministic, a plan that was seen to arrive stays valid while the
+teacher itself drives along it, and is not rolled out again. A student imitates the teacher's
+labels (`clamgen distill --distill.lookahead-candidates`); the teacher's own success is what
+`LookaheadPolicy` measures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from clamgen.envs.reach_env import MAX_EPISODE_STEPS, EnvState, ReachEnv
+
+# Labels and rollouts clip the pre-squash action to this (tanh(3) = 0.995, a saturated step);
+# the same bound as the distillation labels (`distill.TARGET_CLIP`).
+PRE_SQUASH_CLIP = 3.0
+# Ranking of rollout outcomes (larger is better): a collision-free arrival scores ARRIVAL minus
+# its step count, a collision-free miss minus its final distance (m), a collision COLLISION
+# minus its final distance.
+ARRIVAL_SCORE = 1000.0
+COLLISION_SCORE = -1000.0
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one rollout did: steps until it arrived (None: never), whether it collided, and
+    the tip's final distance to the target (m)."""
+
+    arrived_after: int | None
+    collided: bool
+    final_distance_m: float
+
+    @property
+    def clean(self) -> bool:
+        return self.arrived_after is not None and not self.collided
+
+    def score(self) -> float:
+        if self.collided:
+            return COLLISION_SCORE - self.final_distance_m
+        if self.arrived_after is not None:
+            return ARRIVAL_SCORE - self.arrived_after
+        return -self.final_distance_m
+
+
+class LookaheadTeacher:
+    """A privileged residual (`ResidualAgent` with `agent.obs_source 'obstacles'`) that plans
+    with rollouts of itself; see the module docstring.
+
+    Args:
+        agent: the privileged residual.
+        num_obstacles: obstacles per task (the planning envs take everything else from the
+            states they are given).
+        candidates: perturbed plans rolled out when the current plan does not arrive (>= 1).
+        horizon: steps per rollout (the episode's remaining steps, if fewer).
+        noise: standard deviation of the offsets, in pre-squash units.
+        segments: pieces of constant offset along the horizon.
+        seed: seed of the offsets.
+    """
+
+    def __init__(
+        self,
+        agent,
+        num_obstacles: int,
+        candidates: int = 16,
+        horizon: int = 40,
+        noise: float = 1.0,
+        segments: int = 2,
+        seed: int = 0,
+    ) -> None:
+        if candidates < 1 or horizon < 1 or segments < 1 or not noise >= 0:
+            raise ValueError(
+                "lookahead needs candidates, horizon and segments >= 1 and noise >= 0, got "
+                f"{candidates}, {horizon}, {segments}, {noise}"
+            )
+        self.agent = agent
+        self.candidates = candidates
+        self.horizon = horizon
+        self.noise = noise
+        self.segments = segments
+        self.rng = np.random.default_rng(seed)
+        self._env_kwargs = {
+            "num_obstacles": num_obstacles,
+            "include_obstacle_state": True,
+            "max_episode_steps": None,
+        }
+        self._pool: list[ReachEnv] = []
+        self.rollouts = 0
+        """Rollouts run so far (a cost counter)."""
+        self.searches = 0
+        """States at which the plan did not arrive and candidates were rolled out."""
+
+    # ------------------------------------------------------------------ acting
+    def new_plan(self) -> np.ndarray:
+        return np.zeros((self.horizon, 6), dtype=np.float32)
+
+    def act(
+        self, state: EnvState, obs: dict[str, np.ndarray], plan: np.ndarray, known_clean: bool
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """(label, next plan, next known_clean) at `state` (observation `obs`, unbatched).
+
+        label: the pre-squash action (6,), clipped to +-PRE_SQUASH_CLIP; acting means
+        tanh(label). known_clean: `plan` is already known to arrive without a collision from
+        this state (the teacher drove here along it); the returned flag says the same of the
+        next state, if the label is executed exactly."""
+        horizon = min(self.horizon, MAX_EPISODE_STEPS - state.num_steps)
+        plan = plan[:horizon]
+        if not known_clean:
+            (outcome,) = self.rollout(state, plan[None])
+            if not outcome.clean:
+                plan, outcome = self._search(state, plan, outcome)
+            known_clean = outcome.clean
+        batch = {k: v[None] for k, v in obs.items()}
+        mean = self.agent.mean_action(batch)[0]
+        label = np.clip(mean + plan[0], -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
+        following = np.zeros((self.horizon, 6), dtype=np.float32)
+        following[: len(plan) - 1] = plan[1:]
+        # A plan that arrives this very step leaves nothing to know about the next state.
+        return label.astype(np.float32), following, known_clean and len(plan) > 1
+
+    def _search(self, state: EnvState, plan: np.ndarray, outcome: Outcome):
+        self.searches += 1
+        horizon = len(plan)
+        cuts = np.linspace(0, horizon, self.segments + 1).round().astype(int)
+        steps = np.repeat(np.arange(self.segments), np.diff(cuts))
+        noise = self.rng.normal(0.0, self.noise, (self.candidates, self.segments, 6))
+        centres = np.where(np.arange(self.candidates)[:, None, None] % 2 == 0, plan[None], 0.0)
+        perturbed = (centres + noise[:, steps]).astype(np.float32)
+        plans = np.concatenate([np.zeros((1, horizon, 6), np.float32), perturbed])
+        outcomes = self.rollout(state, plans)
+        best = int(np.argmax([o.score() for o in outcomes]))
+        if outcomes[best].score() <= outcome.score():
+            return plan, outcome
+        return plans[best], outcomes[best]
+
+    # ------------------------------------------------------------------ rollouts
+    def rollout(self, state: EnvState, plans: np.ndarray) -> list[Outcome]:
+        """Roll the residual with each plan's offsets (C, H, 6) forward from `state`, all C in
+        lockstep in planning envs; each stops when it arrives or collides."""
+        count, horizon = plans.shape[:2]
+        self.rollouts += count
+        while len(self._pool) < count:
+            self._pool.append(ReachEnv(**self._env_kwargs))
+        envs = self._pool[:count]
+        observations = []
+        for env in envs:
+            env.set_state(state)
+            observations.append(env.observe())
+        arrived: list[int | None] = [None] * count
+        collided = [False] * count
+        distance = [
+            float(
+                np.linalg.norm(observations[0]["achieved_goal"] - observations[0]["desired_goal"])
+            )
+        ] * count
+        active = list(range(count))
+        for t in range(horizon):
+            if not active:
+                break
+            batch = {k: np.stack([observations[i][k] for i in active]) for k in observations[0]}
+            means = self.agent.mean_action(batch)
+            actions = np.tanh(np.clip(means + plans[active, t], -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP))
+            still = []
+            for j, i in enumerate(active):
+                observations[i], _, _, _, info = envs[i].step(actions[j])
+                distance[i] = float(info["distance_m"])
+                if info["collision"]:
+                    collided[i] = True
+                elif info["is_success"]:
+                    arrived[i] = t + 1
+                else:
+                    still.append(i)
+            active = still
+        return [Outcome(arrived[i], collided[i], distance[i]) for i in range(count)]
+
+    def close(self) -> None:
+        for env in self._pool:
+            env.close()
+        self._pool.clear()
+
+
+class LookaheadPolicy:
+    """A `LookaheadTeacher` as an evaluation `Policy` (it reads the env's state at each step)."""
+
+    def __init__(self, teacher: LookaheadTeacher) -> None:
+        self.teacher = teacher
+        self.deterministic = True
+        self._env: Any = None
+        self._plan = teacher.new_plan()
+        self._known_clean = False
+
+    def reset(self, env: Any | None = None) -> None:
+        self._env = env
+        self._plan = self.teacher.new_plan()
+        self._known_clean = False
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if self._env is None:
+            raise RuntimeError("LookaheadPolicy.reset(env) must be called before act")
+        state = self._env.unwrapped.get_state()
+        label, self._plan, self._known_clean = self.teacher.act(
+            state, obs, self._plan, self._known_clean
+        )
+        return np.tanh(label)

@@ -1,0 +1,92 @@
+"""The lookahead teacher: rollouts of itself in a copy of the simulator before each step."""
+
+import numpy as np
+import pytest
+
+from clamgen.baselines.ik_interpolation import IKInterpolationPolicy
+from clamgen.envs.reach_env import ReachEnv
+from clamgen.experiments.evaluate import evaluate, run_episode
+from clamgen.experiments.lookahead import PRE_SQUASH_CLIP, LookaheadPolicy, LookaheadTeacher
+
+
+class BlindAgent:
+    """IK interpolation (obstacle-blind) posing as a residual: its pre-squash mean."""
+
+    def __init__(self) -> None:
+        self.ik = IKInterpolationPolicy()
+        self.calls = 0
+
+    def mean_action(self, batch):
+        self.calls += 1
+        actions = [
+            self.ik.act({k: v[i] for k, v in batch.items()})
+            for i in range(len(batch["desired_goal"]))
+        ]
+        return np.arctanh(np.clip(np.stack(actions), -0.995, 0.995))
+
+
+def blocked_env() -> ReachEnv:
+    return ReachEnv(num_obstacles=2, task_family="blocked", include_obstacle_state=True)
+
+
+def test_a_rollout_without_offsets_is_the_episode_the_agent_would_run():
+    agent = BlindAgent()
+    teacher = LookaheadTeacher(agent, num_obstacles=2, horizon=100)
+    for family, seed in (("blocked", 3), ("obstacles", 4)):
+        env = ReachEnv(num_obstacles=2, task_family=family, include_obstacle_state=True)
+        obs, _ = env.reset(seed=seed)
+        state = env.get_state()
+        (outcome,) = teacher.rollout(state, teacher.new_plan()[None])
+        # The same agent, acting in the env itself, until it arrives or collides.
+        steps, collided, info = 0, False, {}
+        while True:
+            action = np.tanh(
+                np.clip(agent.mean_action({k: v[None] for k, v in obs.items()})[0], -3, 3)
+            )
+            obs, _, terminated, truncated, info = env.step(action)
+            steps += 1
+            collided = info["collision"]
+            if collided or terminated or truncated:
+                break
+        assert outcome.collided == collided
+        assert outcome.arrived_after == (steps if info["is_success"] and not collided else None)
+        assert outcome.final_distance_m == pytest.approx(info["distance_m"])
+        # Planning leaves the env's own episode untouched.
+        env.set_state(state)
+        assert np.array_equal(env.observe()["observation"], state.sim.joints.astype(np.float32))
+
+
+def test_lookahead_turns_the_blind_agents_collisions_into_clean_arrivals():
+    env = blocked_env()
+    seeds = [0, 1, 2]
+    blind = evaluate(env, IKInterpolationPolicy(), seeds)
+    assert all(r.collided for r in blind)
+    teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=16, seed=0)
+    planned = evaluate(env, LookaheadPolicy(teacher), seeds)
+    assert all(r.success for r in planned)
+    assert teacher.searches > 0
+
+
+def test_a_plan_seen_to_arrive_is_not_rolled_out_again_while_the_teacher_follows_it():
+    env = ReachEnv(num_obstacles=2, task_family="obstacles", include_obstacle_state=True)
+    teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2)
+    record = run_episode(env, LookaheadPolicy(teacher), seed=4)
+    assert record.success and record.steps > 1
+    assert (teacher.rollouts, teacher.searches) == (1, 0)
+
+
+def test_labels_are_clipped_pre_squash_actions_and_plans_shift():
+    env = blocked_env()
+    obs, _ = env.reset(seed=0)
+    teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=4, horizon=10, seed=1)
+    label, plan, _ = teacher.act(env.get_state(), obs, teacher.new_plan(), known_clean=False)
+    assert label.shape == (6,) and np.abs(label).max() <= PRE_SQUASH_CLIP
+    assert plan.shape == (10, 6) and not plan[-1].any()
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"candidates": 0}, {"horizon": 0}, {"segments": 0}, {"noise": -1.0}]
+)
+def test_bad_lookahead_settings_are_refused(kwargs):
+    with pytest.raises(ValueError, match="lookahead needs"):
+        LookaheadTeacher(BlindAgent(), num_obstacles=2, **kwargs)
