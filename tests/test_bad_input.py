@@ -217,6 +217,13 @@ def test_eval_and_render_list_the_valid_policies(workdir):
     assert "run is a directory; its policy file is run/policy.pt" in message
 
 
+def test_eval_lookahead_needs_a_privileged_residual(workdir):
+    message = refused(workdir, "eval", "--policy", "base", "--lookahead-candidates", "4")
+    assert "--lookahead-candidates needs a privileged residual" in message
+    message = refused(workdir, "eval", "--policy", "base", "--lookahead-candidates", "-1")
+    assert "--lookahead-candidates must be >= 0, got -1" in message
+
+
 def test_eval_rrt_without_ompl_says_what_to_install(workdir, monkeypatch):
     for module in ("ompl", "ompl.base", "ompl.geometric", "ompl.util"):
         monkeypatch.setitem(sys.modules, module, None)  # `import` then raises ImportError

@@ -363,6 +363,11 @@ class EvalConfig:
     torch_threads: int = 1
     """Torch CPU threads for acting. One is fastest for batch-1 inference of these networks,
     and more are much slower while other jobs share the cores."""
+    lookahead_candidates: int = 0
+    """> 0: a privileged residual plans before each step with rollouts of itself in a copy of
+    the simulator, this many perturbed plans when its own does not arrive cleanly
+    (`clamgen.experiments.lookahead`, the distillation teacher). It then uses the true scene,
+    like RRT with the full model. 0: the policy alone."""
 
 
 TABLE2_ROW_NAMES = {
@@ -419,6 +424,8 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source, env_kwargs = load_policy(config.policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
+    if config.lookahead_candidates != 0:
+        policy, source = _with_lookahead(policy, source, config.lookahead_candidates)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -451,6 +458,23 @@ def evaluate_table(config: EvalConfig) -> list:
     print(table1_markdown(rows, meta["observation"], note))
     print(f"\nwrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
     return rows
+
+
+def _with_lookahead(policy, source: str, candidates: int):
+    """`policy` planning with `candidates` lookahead rollouts; SystemExit unless it is a
+    privileged residual."""
+    from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
+
+    if candidates < 0:
+        raise SystemExit(f"--lookahead-candidates must be >= 0, got {candidates}")
+    config = getattr(getattr(policy, "agent", None), "config", None)
+    if getattr(config, "obs_source", None) != "obstacles":
+        raise SystemExit(
+            "--lookahead-candidates needs a privileged residual (agent.obs_source 'obstacles'), "
+            f"got {source}"
+        )
+    teacher = LookaheadTeacher(policy.agent, num_obstacles=2, candidates=candidates)
+    return LookaheadPolicy(teacher), f"{source} with lookahead ({candidates} candidates)"
 
 
 def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: str) -> dict:

@@ -14,6 +14,11 @@ teacher-student training for legged robots and "learning by cheating" for drivin
    residual) regresses the teacher's pre-squash mean action on all data so far, with CURL's
    random crops and view dropout, and is scored on validation tasks.
 
+With `lookahead_candidates` > 0 the teacher plans before each label: it rolls itself out in a
+copy of the simulator and bends its action by the best of perturbed plans
+(`clamgen.experiments.lookahead`), so that the labels avoid the collisions and stalls the
+teacher's own action would run into; it still acts and labels in one step per state.
+
 The label is the teacher's combined action before the tanh (`ResidualAgent.mean_action`),
 clipped to +-`TARGET_CLIP`, so that a saturated action is still learned as saturated without
 chasing an unbounded target. The student's policy file is a residual policy like
