@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from clamgen.envs import ReachEnv
+from clamgen.experiments import lookahead
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
@@ -48,8 +49,8 @@ def main() -> None:
         help="plan with this many candidate rollouts in the simulator before each step "
         "(clamgen.experiments.lookahead; privileged policies only; 0: off)",
     )
-    parser.add_argument("--lookahead-horizon", type=int, default=40)
-    parser.add_argument("--lookahead-noise", type=float, default=1.0)
+    parser.add_argument("--lookahead-horizon", type=int, default=lookahead.HORIZON)
+    parser.add_argument("--lookahead-noise", type=float, default=lookahead.NOISE)
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:

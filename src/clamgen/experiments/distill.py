@@ -43,6 +43,7 @@ import torch
 from tqdm import tqdm
 
 from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments import lookahead
 from clamgen.experiments.config import (
     TRAINING_SEEDS,
     VALIDATION_SEEDS,
@@ -54,8 +55,9 @@ from clamgen.experiments.lookahead import LookaheadTeacher
 from clamgen.experiments.stage2 import Stage2Config, load_residual_agent, residual_stage
 from clamgen.experiments.train import POLICY_NAME, make_env
 
-# Teacher labels: pre-squash means clipped to this (tanh(3) = 0.995, a saturated step).
-TARGET_CLIP = 3.0
+# Teacher labels: pre-squash means clipped to this (tanh(3) = 0.995, a saturated step); the
+# lookahead teacher's labels and rollouts use the same bound.
+TARGET_CLIP = lookahead.PRE_SQUASH_CLIP
 # Env reset seeds of distillation episodes: training seeds far from the RL runs' (loop seed *
 # 1000 + env index) and from results/stage2/tune/distill.py's.
 DISTILL_SEED_BASE = 800_000_000
@@ -93,11 +95,11 @@ class DistillSettings:
     """> 0: the teacher plans before each label with rollouts of itself in the simulator, this
     many perturbed plans when its current plan does not arrive cleanly
     (`clamgen.experiments.lookahead`); 0: the teacher's own action."""
-    lookahead_horizon: int = 40
+    lookahead_horizon: int = lookahead.HORIZON
     """Steps per lookahead rollout."""
-    lookahead_noise: float = 1.0
+    lookahead_noise: float = lookahead.NOISE
     """Standard deviation of the lookahead's plan offsets (pre-squash units)."""
-    lookahead_segments: int = 2
+    lookahead_segments: int = lookahead.SEGMENTS
     """Pieces of constant offset along a lookahead plan."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the

@@ -33,13 +33,19 @@ import numpy as np
 from clamgen.envs.reach_env import MAX_EPISODE_STEPS, EnvState, ReachEnv
 
 # Labels and rollouts clip the pre-squash action to this (tanh(3) = 0.995, a saturated step);
-# the same bound as the distillation labels (`distill.TARGET_CLIP`).
+# the distillation labels (`distill.TARGET_CLIP`) use it too.
 PRE_SQUASH_CLIP = 3.0
 # Ranking of rollout outcomes (larger is better): a collision-free arrival scores ARRIVAL minus
 # its step count, a collision-free miss minus its final distance (m), a collision COLLISION
 # minus its final distance.
 ARRIVAL_SCORE = 1000.0
 COLLISION_SCORE = -1000.0
+# Defaults (those of every measured run): perturbed plans per search, steps per rollout (an
+# arrival past an obstacle takes 10-40 steps), offset std before the tanh, offset pieces.
+CANDIDATES = 16
+HORIZON = 40
+NOISE = 1.0
+SEGMENTS = 2
 
 
 @dataclass(frozen=True)
@@ -82,10 +88,10 @@ class LookaheadTeacher:
         self,
         agent,
         num_obstacles: int,
-        candidates: int = 16,
-        horizon: int = 40,
-        noise: float = 1.0,
-        segments: int = 2,
+        candidates: int = CANDIDATES,
+        horizon: int = HORIZON,
+        noise: float = NOISE,
+        segments: int = SEGMENTS,
         seed: int = 0,
     ) -> None:
         if candidates < 1 or horizon < 1 or segments < 1 or not noise >= 0:
@@ -123,7 +129,7 @@ class LookaheadTeacher:
         tanh(label). known_clean: `plan` is already known to arrive without a collision from
         this state (the teacher drove here along it); the returned flag says the same of the
         next state, if the label is executed exactly."""
-        horizon = min(self.horizon, MAX_EPISODE_STEPS - state.num_steps)
+        horizon = max(1, min(self.horizon, MAX_EPISODE_STEPS - state.num_steps))
         plan = plan[:horizon]
         if not known_clean:
             (outcome,) = self.rollout(state, plan[None])
