@@ -62,8 +62,10 @@ _WRIST_SINGULAR_EPS = 1e-10
 # the two coinciding branches at a singularity (elbow at full stretch, shoulder boundary).
 _DUPLICATE_TOL_RAD = 1e-6
 
-# A joint angle this far beyond a limit is taken as rounding and clipped to the limit.
-_LIMIT_SLACK_RAD = 1e-9
+# A joint angle this far beyond a limit is taken as rounding and clipped to the limit (the
+# FK check after it still applies). Near a singular wrist q6 is known only to ~1e-16 / |sin q5|
+# (1e-7 at |sin q5| = 1e-9), so a joint exactly at its limit can come back that far beyond it.
+_LIMIT_SLACK_RAD = 1e-6
 
 _TWO_PI = 2.0 * np.pi
 
