@@ -51,7 +51,7 @@ from clamgen.experiments.config import (
     config_to_json,
 )
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
-from clamgen.experiments.lookahead import LookaheadTeacher
+from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
 from clamgen.experiments.stage2 import Stage2Config, load_residual_agent, residual_stage
 from clamgen.experiments.train import POLICY_NAME, make_env
 
@@ -199,6 +199,10 @@ class Distiller:
             if settings.lookahead_candidates
             else None
         )
+        # One plan-following labeller per collection env (reset with its episodes).
+        self.planners = (
+            [LookaheadPolicy(self.lookahead) for _ in self.envs] if self.lookahead else []
+        )
         self.pose_head = torch.nn.Linear(self.student.feature_dim, num_obstacles * POSE_SIZE)
         params = [
             *self.student.critic.encoder.parameters(),
@@ -256,7 +260,6 @@ class Distiller:
         outcomes: dict[bool, list[bool]] = {True: [], False: []}  # by driver: teacher?
         bar = tqdm(total=wanted, desc=f"iteration {iteration} episodes", disable=not show_progress)
         active = list(range(len(self.envs)))
-        plans: list = [None] * len(self.envs)
         collided = [False] * len(self.envs)
         if self.lookahead is not None:
             counts = (self.lookahead.rollouts, self.lookahead.searches)
@@ -265,7 +268,7 @@ class Distiller:
             if self.lookahead is None:
                 labels = np.clip(self.teacher.mean_action(batch), -TARGET_CLIP, TARGET_CLIP)
             else:
-                labels = self._plan_labels(active, obs, plans)
+                labels = np.stack([self.planners[i].label(obs[i]) for i in active])
             if all(driver[i] for i in active):
                 student = labels  # not acted on: the teacher drives every episode
             else:
@@ -276,8 +279,8 @@ class Distiller:
             still = []
             for j, i in enumerate(active):
                 action = np.tanh(labels[j]) if driver[i] else student[j]
-                if not driver[i] and plans[i] is not None:
-                    plans[i] = (plans[i][0], False)  # off the plan's path: check it again
+                if not driver[i] and self.planners:
+                    self.planners[i].off_plan()
                 obs[i], _, terminated, truncated, info = self.envs[i].step(action)
                 collided[i] |= bool(info["collision"])
                 if not (terminated or truncated):
@@ -288,7 +291,7 @@ class Distiller:
                 outcomes[driver[i]].append(bool(info["is_success"]) and not collided[i])
                 if started < wanted:
                     obs[i] = self._reset(i, share, driver)
-                    plans[i], collided[i] = None, False
+                    collided[i] = False
                     started += 1
                     still.append(i)
             active = still
@@ -303,27 +306,16 @@ class Distiller:
             stats["lookahead_searches"] = self.lookahead.searches - counts[1]
         return chunk, stats
 
-    def _plan_labels(self, active: list[int], obs: list[dict], plans: list) -> np.ndarray:
-        """The lookahead teacher's labels (len(active), A) for the active envs' states; each
-        env's (plan, known_clean) in `plans` (None: a new episode) moves on by one step."""
-        labels = []
-        for i in active:
-            plan, known_clean = plans[i] if plans[i] is not None else (None, False)
-            if plan is None:
-                plan = self.lookahead.new_plan()
-            state = self.envs[i].unwrapped.get_state()
-            label, plan, known_clean = self.lookahead.act(state, obs[i], plan, known_clean)
-            plans[i] = (plan, known_clean)
-            labels.append(label)
-        return np.stack(labels)
-
     def _reset(self, i: int, share: float, driver: list[bool]) -> dict[str, np.ndarray]:
         seed = self.next_seed
         if seed not in TRAINING_SEEDS:  # pragma: no cover - needs 10^8 episodes
             raise ValueError(f"distillation ran out of training seeds at {seed}")
         self.next_seed += 1
         driver[i] = bool(self.rng.random() < share)
-        return self.envs[i].reset(seed=seed)[0]
+        obs = self.envs[i].reset(seed=seed)[0]
+        if self.planners:
+            self.planners[i].reset(self.envs[i])
+        return obs
 
     def _regress(self, steps: int, iteration: int, show_progress: bool) -> float | None:
         """`steps` Adam steps of the imitation loss on random batches of all data."""

@@ -174,11 +174,8 @@ class LookaheadTeacher:
             observations.append(env.observe())
         arrived: list[int | None] = [None] * count
         collided = [False] * count
-        distance = [
-            float(
-                np.linalg.norm(observations[0]["achieved_goal"] - observations[0]["desired_goal"])
-            )
-        ] * count
+        start = observations[0]
+        distance = [float(np.linalg.norm(start["achieved_goal"] - start["desired_goal"]))] * count
         active = list(range(count))
         for t in range(horizon):
             if not active:
@@ -206,7 +203,9 @@ class LookaheadTeacher:
 
 
 class LookaheadPolicy:
-    """A `LookaheadTeacher` as an evaluation `Policy` (it reads the env's state at each step)."""
+    """A `LookaheadTeacher` following one episode's plan in an env, as an evaluation `Policy`
+    (`reset(env)`, `act`) and as the distillation's labeller (`label`, `off_plan`); it reads
+    the env's state at each step."""
 
     def __init__(self, teacher: LookaheadTeacher) -> None:
         self.teacher = teacher
@@ -220,11 +219,21 @@ class LookaheadPolicy:
         self._plan = self.teacher.new_plan()
         self._known_clean = False
 
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def label(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The teacher's pre-squash action (6,) at the env's current state (observation `obs`);
+        the plan moves on by one step."""
         if self._env is None:
-            raise RuntimeError("LookaheadPolicy.reset(env) must be called before act")
+            raise RuntimeError("LookaheadPolicy.reset(env) must be called before act or label")
         state = self._env.unwrapped.get_state()
         label, self._plan, self._known_clean = self.teacher.act(
             state, obs, self._plan, self._known_clean
         )
-        return np.tanh(label)
+        return label
+
+    def off_plan(self) -> None:
+        """Another action than the label is about to be executed: the next state is off the
+        plan's path, so the plan is rolled out again there."""
+        self._known_clean = False
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.tanh(self.label(obs))
