@@ -222,6 +222,17 @@ def test_eval_lookahead_needs_a_privileged_residual(workdir):
     assert "--lookahead-candidates needs a privileged residual" in message
     message = refused(workdir, "eval", "--policy", "base", "--lookahead-candidates", "-1")
     assert "--lookahead-candidates must be >= 0, got -1" in message
+    message = refused(
+        workdir,
+        "eval",
+        "--policy",
+        "base",
+        "--lookahead-candidates",
+        "4",
+        "--lookahead-margin-m",
+        "-0.01",
+    )
+    assert "--lookahead-margin-m must be a number >= 0, got -0.01" in message
 
 
 def test_eval_rrt_without_ompl_says_what_to_install(workdir, monkeypatch):

@@ -368,6 +368,9 @@ class EvalConfig:
     the simulator, this many perturbed plans when its own does not arrive cleanly
     (`clamgen.experiments.lookahead`, the distillation teacher). It then uses the true scene,
     like RRT with the full model. 0: the policy alone."""
+    lookahead_margin_m: float = 0.0
+    """With --lookahead-candidates: the clearance (m) its plans keep from obstacles and the
+    table where they can (0: true contact)."""
 
 
 TABLE2_ROW_NAMES = {
@@ -425,7 +428,9 @@ def evaluate_table(config: EvalConfig) -> list:
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
     if config.lookahead_candidates != 0:
-        policy, source = _with_lookahead(policy, source, config.lookahead_candidates)
+        policy, source = _with_lookahead(
+            policy, source, config.lookahead_candidates, config.lookahead_margin_m
+        )
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -460,21 +465,26 @@ def evaluate_table(config: EvalConfig) -> list:
     return rows
 
 
-def _with_lookahead(policy, source: str, candidates: int):
-    """`policy` planning with `candidates` lookahead rollouts; SystemExit unless it is a
-    privileged residual."""
+def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):
+    """`policy` planning with `candidates` lookahead rollouts keeping clearance `margin_m`;
+    SystemExit unless it is a privileged residual."""
     from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
 
     if candidates < 0:
         raise SystemExit(f"--lookahead-candidates must be >= 0, got {candidates}")
+    if not 0 <= margin_m < float("inf"):
+        raise SystemExit(f"--lookahead-margin-m must be a number >= 0, got {margin_m}")
     config = getattr(getattr(policy, "agent", None), "config", None)
     if getattr(config, "obs_source", None) != "obstacles":
         raise SystemExit(
             "--lookahead-candidates needs a privileged residual (agent.obs_source 'obstacles'), "
             f"got {source}"
         )
-    teacher = LookaheadTeacher(policy.agent, num_obstacles=2, candidates=candidates)
-    return LookaheadPolicy(teacher), f"{source} with lookahead ({candidates} candidates)"
+    teacher = LookaheadTeacher(
+        policy.agent, num_obstacles=2, candidates=candidates, margin_m=margin_m
+    )
+    clearance = f", {margin_m * 100:g} cm clearance" if margin_m else ""
+    return LookaheadPolicy(teacher), f"{source} with lookahead ({candidates} candidates{clearance})"
 
 
 def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: str) -> dict:

@@ -163,3 +163,5 @@ def test_a_lookahead_teacher_labels_with_its_plans_and_reports_their_cost(
     assert np.abs(distiller.data.arrays["label"]).max() <= TARGET_CLIP
     with pytest.raises(ValueError, match=r"distill\.lookahead_horizon"):
         DistillSettings(lookahead_horizon=0)
+    with pytest.raises(ValueError, match=r"distill\.lookahead_margin_m"):
+        DistillSettings(lookahead_margin_m=-0.01)

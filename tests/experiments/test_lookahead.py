@@ -67,6 +67,34 @@ def test_lookahead_turns_the_blind_agents_collisions_into_clean_arrivals():
     assert teacher.searches > 0
 
 
+def test_plans_keep_the_clearance_where_they_can():
+    seeds = [0, 1, 2]
+    margin = 0.02
+    # Scored by an env that counts approaches within the margin as collisions.
+    strict = ReachEnv(
+        num_obstacles=2,
+        task_family="blocked",
+        include_obstacle_state=True,
+        collision_margin_m=margin,
+    )
+    plain = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=16, seed=0)
+    clear = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=16, seed=0, margin_m=margin)
+    scores = {
+        name: evaluate(strict, LookaheadPolicy(teacher), seeds)
+        for name, teacher in (("plain", plain), ("clear", clear))
+    }
+    assert all(r.success and not r.collided for r in scores["clear"])
+    assert any(r.collided for r in scores["plain"])  # the blind agent's plans graze obstacles
+
+
+def test_without_any_plan_that_keeps_the_clearance_it_plans_against_true_contact():
+    # Nothing stays half a metre from the table: every rollout with that margin collides.
+    env = blocked_env()
+    teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=16, margin_m=0.5)
+    records = evaluate(env, LookaheadPolicy(teacher), [0, 1])
+    assert all(r.success and not r.collided for r in records)
+
+
 def test_a_plan_seen_to_arrive_is_not_rolled_out_again_while_the_teacher_follows_it():
     env = ReachEnv(num_obstacles=2, task_family="obstacles", include_obstacle_state=True)
     teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2)
@@ -85,8 +113,9 @@ def test_labels_are_clipped_pre_squash_actions_and_plans_shift():
 
 
 @pytest.mark.parametrize(
-    "kwargs", [{"candidates": 0}, {"horizon": 0}, {"segments": 0}, {"noise": -1.0}]
+    "kwargs",
+    [{"candidates": 0}, {"horizon": 0}, {"segments": 0}, {"noise": -1.0}, {"margin_m": -0.01}],
 )
 def test_bad_lookahead_settings_are_refused(kwargs):
-    with pytest.raises(ValueError, match="lookahead needs"):
+    with pytest.raises(ValueError, match="lookahead"):
         LookaheadTeacher(BlindAgent(), num_obstacles=2, **kwargs)

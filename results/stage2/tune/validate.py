@@ -51,6 +51,12 @@ def main() -> None:
     )
     parser.add_argument("--lookahead-horizon", type=int, default=lookahead.HORIZON)
     parser.add_argument("--lookahead-noise", type=float, default=lookahead.NOISE)
+    parser.add_argument(
+        "--lookahead-margin",
+        type=float,
+        default=lookahead.MARGIN_M,
+        help="clearance (m) the lookahead's plans keep where they can (0: true contact)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:
@@ -68,11 +74,13 @@ def main() -> None:
                 candidates=args.lookahead,
                 horizon=args.lookahead_horizon,
                 noise=args.lookahead_noise,
+                margin_m=args.lookahead_margin,
             )
             policy = LookaheadPolicy(teacher)
             label += (
                 f" (lookahead {args.lookahead} x {args.lookahead_horizon}, "
-                f"noise {args.lookahead_noise})"
+                f"noise {args.lookahead_noise}"
+                + (f", margin {args.lookahead_margin} m)" if args.lookahead_margin else ")")
             )
         score(policy, label, source, env_kwargs, args.num_tasks, args.families)
 

@@ -101,6 +101,9 @@ class DistillSettings:
     """Standard deviation of the lookahead's plan offsets (pre-squash units)."""
     lookahead_segments: int = lookahead.SEGMENTS
     """Pieces of constant offset along a lookahead plan."""
+    lookahead_margin_m: float = lookahead.MARGIN_M
+    """Clearance (m) the lookahead's plans keep from obstacles and the table where they can,
+    so that the student's labels leave room for its own errors (0: true contact)."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -116,6 +119,10 @@ class DistillSettings:
         if not 0 <= self.lookahead_noise < float("inf"):
             raise ValueError(
                 f"distill.lookahead_noise must be a number >= 0, got {self.lookahead_noise}"
+            )
+        if not 0 <= self.lookahead_margin_m < float("inf"):
+            raise ValueError(
+                f"distill.lookahead_margin_m must be a number >= 0, got {self.lookahead_margin_m}"
             )
         if not 0 <= self.teacher_share <= 1:
             raise ValueError(f"distill.teacher_share must be in [0, 1], got {self.teacher_share}")
@@ -195,6 +202,7 @@ class Distiller:
                 noise=settings.lookahead_noise,
                 segments=settings.lookahead_segments,
                 seed=settings.seed,
+                margin_m=settings.lookahead_margin_m,
             )
             if settings.lookahead_candidates
             else None

@@ -16,6 +16,12 @@ distillation need not act fast and may use the simulator itself, so this one pla
 4. it acts (or labels, for the student) with the residual's mean plus the plan's first offset,
    and shifts the plan by one step.
 
+With a clearance `margin_m` > 0 the rollouts count any approach closer than that to an
+obstacle or the table as a collision (the planning envs' `collision_margin_m`), so the plans it
+keeps pass obstacles with room to spare; where no candidate keeps the clearance (a goal close
+to an obstacle, or a state already within it), it plans again against true contact. A student
+imitating clear plans has that room for its own errors.
+
 The rollouts are closed-loop: the residual still reacts to each state, the offsets only bend
 it. Since the simulator is deterministic, a plan that was seen to arrive stays valid while the
 teacher itself drives along it, and is not rolled out again. A student imitates the teacher's
@@ -46,6 +52,8 @@ CANDIDATES = 16
 HORIZON = 40
 NOISE = 1.0
 SEGMENTS = 2
+# Default clearance of the plans (m): 0, true contact (the measured runs before the clearance).
+MARGIN_M = 0.0
 
 
 @dataclass(frozen=True)
@@ -82,6 +90,8 @@ class LookaheadTeacher:
         noise: standard deviation of the offsets, in pre-squash units.
         segments: pieces of constant offset along the horizon.
         seed: seed of the offsets.
+        margin_m: clearance (m) the plans keep from obstacles and the table where they can;
+            0: true contact only.
     """
 
     def __init__(
@@ -93,24 +103,28 @@ class LookaheadTeacher:
         noise: float = NOISE,
         segments: int = SEGMENTS,
         seed: int = 0,
+        margin_m: float = MARGIN_M,
     ) -> None:
         if candidates < 1 or horizon < 1 or segments < 1 or not noise >= 0:
             raise ValueError(
                 "lookahead needs candidates, horizon and segments >= 1 and noise >= 0, got "
                 f"{candidates}, {horizon}, {segments}, {noise}"
             )
+        if not 0 <= margin_m < float("inf"):
+            raise ValueError(f"lookahead margin_m must be a number >= 0, got {margin_m}")
         self.agent = agent
         self.candidates = candidates
         self.horizon = horizon
         self.noise = noise
         self.segments = segments
+        self.margin_m = float(margin_m)
         self.rng = np.random.default_rng(seed)
         self._env_kwargs = {
             "num_obstacles": num_obstacles,
             "include_obstacle_state": True,
             "max_episode_steps": None,
         }
-        self._pool: list[ReachEnv] = []
+        self._pools: dict[float, list[ReachEnv]] = {}  # planning envs by clearance
         self.rollouts = 0
         """Rollouts run so far (a cost counter)."""
         self.searches = 0
@@ -132,9 +146,9 @@ class LookaheadTeacher:
         horizon = max(1, min(self.horizon, MAX_EPISODE_STEPS - state.num_steps))
         plan = plan[:horizon]
         if not known_clean:
-            (outcome,) = self.rollout(state, plan[None])
-            if not outcome.clean:
-                plan, outcome = self._search(state, plan, outcome)
+            plan, outcome = self._plan(state, plan, self.margin_m)
+            if not outcome.clean and self.margin_m > 0:
+                plan, outcome = self._plan(state, plan, 0.0)
             known_clean = outcome.clean
         batch = {k: v[None] for k, v in obs.items()}
         mean = self.agent.mean_action(batch)[0]
@@ -144,7 +158,15 @@ class LookaheadTeacher:
         # A plan that arrives this very step leaves nothing to know about the next state.
         return label.astype(np.float32), following, known_clean and len(plan) > 1
 
-    def _search(self, state: EnvState, plan: np.ndarray, outcome: Outcome):
+    def _plan(self, state: EnvState, plan: np.ndarray, margin_m: float):
+        """(plan, its outcome): `plan` if it arrives cleanly with clearance `margin_m`, else the
+        best of a search around it."""
+        (outcome,) = self.rollout(state, plan[None], margin_m)
+        if outcome.clean:
+            return plan, outcome
+        return self._search(state, plan, outcome, margin_m)
+
+    def _search(self, state: EnvState, plan: np.ndarray, outcome: Outcome, margin_m: float):
         self.searches += 1
         horizon = len(plan)
         cuts = np.linspace(0, horizon, self.segments + 1).round().astype(int)
@@ -153,21 +175,23 @@ class LookaheadTeacher:
         centres = np.where(np.arange(self.candidates)[:, None, None] % 2 == 0, plan[None], 0.0)
         perturbed = (centres + noise[:, steps]).astype(np.float32)
         plans = np.concatenate([np.zeros((1, horizon, 6), np.float32), perturbed])
-        outcomes = self.rollout(state, plans)
+        outcomes = self.rollout(state, plans, margin_m)
         best = int(np.argmax([o.score() for o in outcomes]))
         if outcomes[best].score() <= outcome.score():
             return plan, outcome
         return plans[best], outcomes[best]
 
     # ------------------------------------------------------------------ rollouts
-    def rollout(self, state: EnvState, plans: np.ndarray) -> list[Outcome]:
+    def rollout(self, state: EnvState, plans: np.ndarray, margin_m: float = 0.0) -> list[Outcome]:
         """Roll the residual with each plan's offsets (C, H, 6) forward from `state`, all C in
-        lockstep in planning envs; each stops when it arrives or collides."""
+        lockstep in planning envs that count contacts within `margin_m` as collisions; each
+        stops when it arrives or collides."""
         count, horizon = plans.shape[:2]
         self.rollouts += count
-        while len(self._pool) < count:
-            self._pool.append(ReachEnv(**self._env_kwargs))
-        envs = self._pool[:count]
+        pool = self._pools.setdefault(margin_m, [])
+        while len(pool) < count:
+            pool.append(ReachEnv(**self._env_kwargs, collision_margin_m=margin_m))
+        envs = pool[:count]
         observations = []
         for env in envs:
             env.set_state(state)
@@ -197,9 +221,10 @@ class LookaheadTeacher:
         return [Outcome(arrived[i], collided[i], distance[i]) for i in range(count)]
 
     def close(self) -> None:
-        for env in self._pool:
-            env.close()
-        self._pool.clear()
+        for pool in self._pools.values():
+            for env in pool:
+                env.close()
+        self._pools.clear()
 
 
 class LookaheadPolicy:
