@@ -18,6 +18,7 @@ from clamgen.experiments.distill import (
 )
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer
+from clamgen.experiments.sweep import read_validation
 from clamgen.experiments.train import POLICY_NAME, Trainer
 from clamgen.replay import ReplayConfig
 
@@ -124,6 +125,10 @@ def test_a_rerun_resumes_after_the_last_iteration_and_refuses_other_settings(
     first_samples = summary["iterations"][0]["samples"]
     assert summary["iterations"][1]["samples"] > first_samples  # iteration 0's data kept
     assert (first.student.run_dir / "data" / "iteration1.npz").exists()
+    # metrics.csv holds each iteration's validation once, against the labelled states so far.
+    steps, success = read_validation(first.student.run_dir)
+    assert steps == [row["samples"] for row in summary["iterations"]]
+    assert success == [row["validation/success_rate"] for row in summary["iterations"]]
 
 
 def test_the_teacher_must_be_privileged_and_the_student_must_see_images(

@@ -81,6 +81,48 @@ compare_to = "CLAMGen, 3 RGBD views"
     assert spec.summary_path == tmp_path / "runs" / "summary.json"
 
 
+def test_a_distillation_sweep_seeds_the_dagger_loop_and_waits_for_its_summary(tmp_path):
+    spec = S.load_spec(
+        write_spec(
+            tmp_path,
+            f"""
+run_root = "{tmp_path / "runs"}"
+command = "distill"
+presets = ["residual-cpu"]
+seeds = [1]
+flags = ["--distill.teacher", "teacher.pt"]
+set = {{"distill.lookahead_candidates" = 16, "env.num_views" = 1}}
+[eval]
+table = 2
+[[overrides]]
+name = "1 view, distilled"
+""",
+        )
+    )
+    (run,) = S.plan_runs(spec)
+    args = run.train_args
+    assert args[0] == "distill" and args[args.index("--distill.seed") + 1] == "1"
+    assert "--loop.seed" not in args
+    assert args[args.index("--distill.lookahead-candidates") + 1] == "16"
+    assert args[args.index("--env.num-views") + 1] == "1"
+    # Its policy file is written after each iteration: a run is trained once it has a summary.
+    run.run_dir.mkdir(parents=True)
+    run.policy_path.write_bytes(b"")
+    (run.run_dir / "student.pt").write_bytes(b"")
+    assert not run.trained and run.has_checkpoint
+    (run.run_dir / "summary.json").write_text("{}")
+    assert run.trained
+    with pytest.raises(S.SpecError, match=r"distill\.seed is set by"):
+        S.load_spec(
+            write_spec(
+                tmp_path,
+                spec.text.replace('"teacher.pt"]', '"teacher.pt", "--distill.seed", "2"]'),
+            )
+        )
+    with pytest.raises(S.SpecError, match=r"'distill\.sed' is not a field"):
+        S.load_spec(write_spec(tmp_path, spec.text.replace("lookahead_candidates", "sed")))
+
+
 HEAD = 'run_root = "r"\ncommand = "train"\npresets = ["base"]\n'
 EVAL = "[eval]\ntable = 1\n"
 

@@ -53,7 +53,7 @@ from clamgen.experiments.config import (
 from clamgen.experiments.evaluate import SACPolicy, evaluate, summarize
 from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
 from clamgen.experiments.stage2 import Stage2Config, load_residual_agent, residual_stage
-from clamgen.experiments.train import POLICY_NAME, make_env
+from clamgen.experiments.train import POLICY_NAME, MetricLogger, make_env
 
 # Teacher labels: pre-squash means clipped to this (tanh(3) = 0.995, a saturated step); the
 # lookahead teacher's labels and rollouts use the same bound.
@@ -225,10 +225,22 @@ class Distiller:
 
     # ------------------------------------------------------------------ the loop
     def run(self, show_progress: bool = True) -> dict[str, Any]:
-        settings = self.config.distill
         self.run_dir.mkdir(parents=True, exist_ok=True)
         start = self._resume()
         (self.run_dir / "config.json").write_text(_config_json(self.config))
+        # metrics.csv and TensorBoard, against labelled states (the env steps collected so far).
+        metrics = MetricLogger(self.run_dir, self.history[-1]["samples"] if self.history else None)
+        try:
+            self._iterate(start, metrics, show_progress)
+        finally:
+            metrics.close()
+        best = max(self.history, key=lambda r: r["validation/success_rate"])
+        summary = {"best_iteration": best["iteration"], **best, "iterations": self.history}
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        return summary
+
+    def _iterate(self, start: int, metrics: MetricLogger, show_progress: bool) -> None:
+        settings = self.config.distill
         for iteration in range(start, settings.iterations):
             tic = time.perf_counter()
             share = 1.0 if iteration == 0 else settings.teacher_share**iteration
@@ -248,11 +260,19 @@ class Distiller:
             }
             self.history.append(row)
             print(json.dumps(row), flush=True)
+            logged = {
+                "eval/success_rate": scores["success_rate"],
+                "eval/collision_rate": scores["collision_rate"],
+                "distill/loss": loss,
+                "distill/rollout_success": stats["rollout_success"],
+                "distill/teacher_success": stats["teacher_success"],
+            }
+            wall_time = sum(r["seconds"] for r in self.history)
+            # Logged before the checkpoint: a kill between the two drops the row on resume.
+            metrics.log(
+                len(self.data), wall_time, {k: v for k, v in logged.items() if v is not None}
+            )
             self._save(iteration, scores["success_rate"])
-        best = max(self.history, key=lambda r: r["validation/success_rate"])
-        summary = {"best_iteration": best["iteration"], **best, "iterations": self.history}
-        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        return summary
 
     def _collect(self, share: float, iteration: int, show_progress: bool):
         """`episodes_per_iteration` episodes, the teacher driving each with probability

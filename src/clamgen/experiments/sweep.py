@@ -24,7 +24,7 @@ The spec (TOML; paths relative to the current directory):
     name = "table2"                          # default: the file's stem
     run_root = "runs/sweeps/table2"          # RUN = run_root/<row>/seed<S>
     summary = "results/sweeps/table2.json"   # default: run_root/summary.json
-    command = "train-residual"               # or "train"; rows may override
+    command = "train-residual"               # or "train", "distill"; rows may override
     presets = ["residual-cpu"]               # names or .toml paths; rows may override
     seeds = [0, 1, 2]                        # training loop seeds; rows may override
     flags = ["--loop.total-env-steps", "60000"]   # CLI flags for every run
@@ -65,13 +65,23 @@ from typing import Annotated, Any
 import tyro
 
 INSTALL_HINT = "Ray is not installed: pip install 'clamgen[sweep]' (or: pip install ray)"
-COMMANDS = ("train", "train-residual")
+COMMANDS = ("train", "train-residual", "distill")
+# The flag that sets a run's training seed, per command (distillation has its own loop).
+SEED_FLAGS = {"train": "--loop.seed", "train-residual": "--loop.seed", "distill": "--distill.seed"}
+# What a finished distillation leaves (its policy file is written after every iteration).
+DISTILL_SUMMARY = "summary.json"
 POLICY_FILE = "policy.pt"
 EVAL_STEM = "eval"
 LOCK_FILE = ".sweep.lock"
 VALIDATION_METRIC = "eval/success_rate"
 # Flags the sweep sets itself for every run; a spec may not set them.
-RESERVED_TRAIN_FLAGS = ("--run-dir", "--loop.seed", "--preset", "--loop.torch-threads")
+RESERVED_TRAIN_FLAGS = (
+    "--run-dir",
+    "--loop.seed",
+    "--distill.seed",
+    "--preset",
+    "--loop.torch-threads",
+)
 RESERVED_EVAL_FLAGS = ("--policy", "--out", "--name", "--table")
 SPEC_KEYS = {"name", "run_root", "summary", "command", "presets", "seeds", "flags", "set"}
 SPEC_KEYS |= {"eval", "overrides"}
@@ -153,6 +163,8 @@ class Run:
 
     @property
     def trained(self) -> bool:
+        if self.command == "distill":  # its policy file exists after the first iteration
+            return (self.run_dir / DISTILL_SUMMARY).is_file() and self.policy_path.is_file()
         return self.policy_path.is_file()
 
     @property
@@ -162,6 +174,10 @@ class Run:
     @property
     def has_checkpoint(self) -> bool:
         checkpoints = self.run_dir / "checkpoints"
+        if self.command == "distill":
+            from clamgen.experiments.distill import STATE_NAME
+
+            return (self.run_dir / STATE_NAME).is_file()
         return checkpoints.is_dir() and any(checkpoints.iterdir())
 
 
@@ -204,18 +220,20 @@ def _config_class(command: str) -> type:
     return Stage2Config
 
 
-def _field_type(cls: type, dotted: str, where: str) -> Any:
-    """The type of config field `dotted` (e.g. `agent.encoder.num_views`) of `cls`."""
+def _field_type(cls: type, dotted: str, where: str, shown: str | None = None) -> Any:
+    """The type of config field `dotted` (e.g. `agent.encoder.num_views`) of `cls`; errors
+    name it `shown` (default: `dotted`)."""
+    shown = shown or dotted
     hint: Any = cls
     for part in dotted.split("."):
         if not dataclasses.is_dataclass(hint):
-            _fail(where, f"{dotted!r} is not a field of {cls.__name__} ({part!r} has no fields)")
+            _fail(where, f"{shown!r} is not a field of {cls.__name__} ({part!r} has no fields)")
         fields = {f.name for f in dataclasses.fields(hint)}
         name = part.replace("-", "_")
         if name not in fields:
             _fail(
                 where,
-                f"{dotted!r} is not a field of {cls.__name__}: {hint.__name__} has "
+                f"{shown!r} is not a field of {cls.__name__}: {hint.__name__} has "
                 f"{', '.join(sorted(fields))}",
             )
         hint = typing.get_type_hints(hint)[name]
@@ -227,10 +245,14 @@ def overrides_to_flags(overrides: Any, command: str, where: str) -> tuple[str, .
     booleans as `--agent.residual` / `--agent.no-residual`, lists as several values."""
     if not isinstance(overrides, dict):
         _fail(where, f"set must be a table of config fields, got {overrides!r}")
-    cls = _config_class(command)
     flags: list[str] = []
     for key, value in overrides.items():
-        hint = _field_type(cls, key, where)
+        if command == "distill" and key.startswith("distill."):
+            from clamgen.experiments.distill import DistillSettings
+
+            hint = _field_type(DistillSettings, key.removeprefix("distill."), where, key)
+        else:
+            hint = _field_type(_config_class(command), key, where)
         *parents, last = key.replace("_", "-").split(".")
         prefix = "--" + "".join(p + "." for p in parents)
         if prefix + last in RESERVED_TRAIN_FLAGS:
@@ -363,7 +385,7 @@ def plan_runs(spec: SweepSpec) -> list[Run]:
                     "--preset",
                     preset,
                     *row.flags,
-                    "--loop.seed",
+                    SEED_FLAGS[row.command],
                     str(seed),
                     "--loop.torch-threads",
                     "1",
