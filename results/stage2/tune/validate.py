@@ -57,6 +57,13 @@ def main() -> None:
         default=lookahead.MARGIN_M,
         help="clearance (m) the lookahead's plans keep where they can (0: true contact)",
     )
+    parser.add_argument(
+        "--clearance",
+        type=float,
+        default=0.0,
+        help="score with envs that count approaches within this many metres of an obstacle or "
+        "the table as collisions (0: true contact, as the tables)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:
@@ -82,6 +89,9 @@ def main() -> None:
                 f"noise {args.lookahead_noise}"
                 + (f", margin {args.lookahead_margin} m)" if args.lookahead_margin else ")")
             )
+        if args.clearance:
+            label += f" [scored with {args.clearance} m clearance]"
+            env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}
         score(policy, label, source, env_kwargs, args.num_tasks, args.families)
 
 
