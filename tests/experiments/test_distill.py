@@ -1,6 +1,7 @@
 """DAgger from a privileged residual into a vision residual, end to end on tiny budgets."""
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -170,3 +171,42 @@ def test_a_lookahead_teacher_labels_with_its_plans_and_reports_their_cost(
         DistillSettings(lookahead_horizon=0)
     with pytest.raises(ValueError, match=r"distill\.lookahead_margin_m"):
         DistillSettings(lookahead_margin_m=-0.01)
+
+
+def test_a_finished_run_is_polished_with_a_decaying_learning_rate_and_keeps_the_best(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1)).run(False)
+    polish = dict(iterations=1, final_updates=8)
+    polishing = Distiller(distill_config(tmp_path, base_policy, teacher, **polish))
+    rates = []
+    step = polishing.optimizer.step
+
+    def record_lr_and_step(*args, **kwargs):
+        rates.append(polishing.optimizer.param_groups[0]["lr"])
+        return step(*args, **kwargs)
+
+    polishing.optimizer.step = record_lr_and_step
+    summary = polishing.run(show_progress=False)
+    # No new iteration: 8 regression steps from lr down towards 0, then validation.
+    assert [row["iteration"] for row in summary["iterations"]] == [0]
+    assert len(rates) == 8 and rates[0] == pytest.approx(3e-4)
+    assert all(a > b for a, b in itertools.pairwise(rates)) and rates[-1] < 3e-5
+    assert polishing.optimizer.param_groups[0]["lr"] == pytest.approx(3e-4)
+    final = summary["final"]
+    assert final["updates"] == 8 and "validation/success_rate" in final
+    run_dir = tmp_path / "run"
+    assert (run_dir / "policy_final.pt").exists()
+    best = max(
+        summary["iterations"][0]["validation/success_rate"], final["validation/success_rate"]
+    )
+    assert summary["validation/success_rate"] == best
+    # Rerun: nothing left to do; more iterations after polishing are refused.
+    again = Distiller(distill_config(tmp_path, base_policy, teacher, **polish))
+    assert again.run(show_progress=False)["final"] == final
+    with pytest.raises(ValueError, match="polished"):
+        Distiller(
+            distill_config(tmp_path, base_policy, teacher, **{**polish, "iterations": 2})
+        ).run(False)

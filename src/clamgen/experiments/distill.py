@@ -84,6 +84,11 @@ class DistillSettings:
     """Iteration k >= 1: the teacher drives a share teacher_share ** k of the episodes."""
     lr: float = 3e-4
     """Adam learning rate of the student's encoder and actor."""
+    final_updates: int = 0
+    """After the last iteration, this many more regression steps on all data with the learning
+    rate decayed from `lr` to 0 along a cosine ("polishing"); the polished student is validated
+    like an iteration, saved as `policy_final.pt`, and becomes `policy.pt` if it is the best.
+    A finished run is polished by running it again with this set. 0: none."""
     pose_weight: float = 1.0
     """Weight of an auxiliary loss that regresses the obstacles' true poses from the student's
     visual encoding (a training-only linear head; the loss takes the best matching of the
@@ -112,6 +117,7 @@ class DistillSettings:
         for name in ("iterations", "episodes_per_iteration", "num_eval_episodes"):
             _require_int(f"distill.{name}", getattr(self, name), 1)
         _require_int("distill.updates_per_iteration", self.updates_per_iteration, 0)
+        _require_int("distill.final_updates", self.final_updates, 0)
         _require_int("distill.seed", self.seed, 0, 999)
         _require_int("distill.lookahead_candidates", self.lookahead_candidates, 0)
         _require_int("distill.lookahead_horizon", self.lookahead_horizon, 1)
@@ -221,6 +227,7 @@ class Distiller:
         self.rng = np.random.default_rng([settings.seed, 1])
         self.data = _Dataset()
         self.history: list[dict[str, Any]] = []
+        self.final: dict[str, Any] | None = None  # the polished student's validation
         self.next_seed = DISTILL_SEED_BASE + settings.seed * 100_000
 
     # ------------------------------------------------------------------ the loop
@@ -234,8 +241,15 @@ class Distiller:
             self._iterate(start, metrics, show_progress)
         finally:
             metrics.close()
-        best = max(self.history, key=lambda r: r["validation/success_rate"])
-        summary = {"best_iteration": best["iteration"], **best, "iterations": self.history}
+        if self.config.distill.final_updates and self.final is None:
+            self._polish(show_progress)
+        best = max(self._scored(), key=lambda r: r["validation/success_rate"])
+        summary = {
+            "best_iteration": best["iteration"],
+            **best,
+            "iterations": self.history,
+            **({"final": self.final} if self.final else {}),
+        }
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         return summary
 
@@ -273,6 +287,28 @@ class Distiller:
                 len(self.data), wall_time, {k: v for k, v in logged.items() if v is not None}
             )
             self._save(iteration, scores["success_rate"])
+
+    def _polish(self, show_progress: bool) -> None:
+        """`final_updates` regression steps with a cosine-decayed learning rate, then validate
+        and save the polished student."""
+        tic = time.perf_counter()
+        steps = self.config.distill.final_updates
+        loss = self._regress(steps, "final", show_progress, decay=True)
+        scores = self._validate()
+        self.final = {
+            "iteration": "final",
+            "samples": len(self.data),
+            "updates": steps,
+            "loss": loss,
+            **{f"validation/{k}": v for k, v in scores.items()},
+            "seconds": time.perf_counter() - tic,
+        }
+        print(json.dumps(self.final), flush=True)
+        self._save("final", scores["success_rate"])
+
+    def _scored(self) -> list[dict[str, Any]]:
+        """Every validated student: the iterations', then the polished one's."""
+        return [*self.history, *([self.final] if self.final else [])]
 
     def _collect(self, share: float, iteration: int, show_progress: bool):
         """`episodes_per_iteration` episodes, the teacher driving each with probability
@@ -345,13 +381,20 @@ class Distiller:
             self.planners[i].reset(self.envs[i])
         return obs
 
-    def _regress(self, steps: int, iteration: int, show_progress: bool) -> float | None:
-        """`steps` Adam steps of the imitation loss on random batches of all data."""
+    def _regress(
+        self, steps: int, iteration: int | str, show_progress: bool, decay: bool = False
+    ) -> float | None:
+        """`steps` Adam steps of the imitation loss on random batches of all data; with
+        `decay`, the learning rate falls from `lr` to 0 along a cosine over them."""
         batch_size = self.config.student.agent.batch_size
+        lr = self.config.distill.lr
         loss_value = None
-        for _ in tqdm(
+        for step in tqdm(
             range(steps), desc=f"iteration {iteration} regression", disable=not show_progress
         ):
+            if decay:
+                for group in self.optimizer.param_groups:
+                    group["lr"] = 0.5 * lr * (1 + np.cos(np.pi * step / steps))
             index = self.rng.integers(0, len(self.data), batch_size)
             obs, labels = self.data.batch(index)
             loss, visual = self.student.imitation_loss(obs, torch.as_tensor(labels))
@@ -364,6 +407,8 @@ class Distiller:
             loss.backward()
             self.optimizer.step()
             loss_value = float(loss.detach())
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
         return loss_value
 
     def _validate(self) -> dict[str, float]:
@@ -371,7 +416,7 @@ class Distiller:
         return summarize(evaluate(self.eval_env, SACPolicy(self.student), seeds))
 
     # --------------------------------------------------------------- files
-    def _payload(self, iteration: int) -> dict[str, Any]:
+    def _payload(self, iteration: int | str) -> dict[str, Any]:
         state = self.student.state_dict()
         return {
             "format": ckpt.FORMAT,
@@ -383,14 +428,18 @@ class Distiller:
             **self.stage.policy_extras(self.student),
         }
 
-    def _save(self, iteration: int, success: float) -> None:
+    def _save(self, iteration: int | str, success: float) -> None:
+        """The student after `iteration` (an index, or "final" once polished): its policy file,
+        `policy.pt` if it is the best so far, and the state a rerun resumes from."""
         payload = self._payload(iteration)
-        ckpt.save_torch(self.run_dir / f"policy_iteration{iteration}.pt", payload)
-        best = max(r["validation/success_rate"] for r in self.history)
+        name = "policy_final.pt" if iteration == "final" else f"policy_iteration{iteration}.pt"
+        ckpt.save_torch(self.run_dir / name, payload)
+        best = max(r["validation/success_rate"] for r in self._scored())
         if success >= best:
             ckpt.save_torch(self.run_dir / POLICY_NAME, payload)
         state = {
-            "iteration": iteration,
+            "iteration": self.history[-1]["iteration"],
+            "final": self.final,
             "student": self.student.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "pose_head": self.pose_head.state_dict(),
@@ -412,8 +461,8 @@ class Distiller:
         if _resumable_part(saved) != _resumable_part(json.loads(_config_json(self.config))):
             raise ValueError(
                 f"{self.run_dir} holds a distillation with another configuration "
-                "(config.json; only distill.iterations may change): use another "
-                "--run-dir or the same options"
+                "(config.json; only distill.iterations and distill.final_updates may change): "
+                "use another --run-dir or the same options"
             )
         state = ckpt.load_torch(path, kind="distill")
         self.student.load_state_dict(state["student"])
@@ -422,6 +471,12 @@ class Distiller:
         self.rng.bit_generator.state = state["rng"]
         self.next_seed = state["next_seed"]
         self.history = list(state["history"])
+        self.final = state.get("final")
+        if self.final is not None and self.config.distill.iterations > state["iteration"] + 1:
+            raise ValueError(
+                f"{self.run_dir} holds a polished student (distill.final_updates): it takes no "
+                "more iterations; use another --run-dir"
+            )
         if self.lookahead is not None and state.get("lookahead_rng") is not None:
             self.lookahead.rng.bit_generator.state = state["lookahead_rng"]
         for iteration in range(state["iteration"] + 1):
@@ -454,8 +509,9 @@ def pose_loss(predicted: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
 
 
 def _resumable_part(config: dict) -> dict:
-    """A config's JSON without what a resumed run may change (the number of iterations)."""
-    return {**config, "distill": {**config["distill"], "iterations": None}}
+    """A config's JSON without what a resumed run may change (the number of iterations, the
+    polishing)."""
+    return {**config, "distill": {**config["distill"], "iterations": None, "final_updates": None}}
 
 
 def distill(config: DistillConfig, show_progress: bool = True) -> dict[str, Any]:
