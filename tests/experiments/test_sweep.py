@@ -195,6 +195,33 @@ def test_dry_run_prints_the_commands_and_runs_nothing(tmp_path, capsys):
     assert not (tmp_path / "runs").exists()  # no run directory, no summary file
 
 
+def test_runs_finished_on_another_machine_are_kept_from_the_committed_summary(tmp_path, capsys):
+    spec_path = write_spec(tmp_path, TINY.format(root=tmp_path / "runs"))
+    spec = S.load_spec(spec_path)
+    short, long = S.plan_runs(spec)
+    record = {
+        "id": short.id,
+        "row": short.row,
+        "seed": 0,
+        "train_command": "clamgen " + " ".join(short.train_args),
+        "eval_command": "clamgen " + " ".join(short.eval_args),
+        "status": "done",
+        "validation": {"steps": [100, 200], "success_rate": [0.5, 1.0]},
+        "test": {"table": 1, "observation": "joints", "scores": {"0": 1.0}},
+    }
+    stale = {**record, "id": long.id, "train_command": "clamgen train --preset base"}
+    spec.summary_path.parent.mkdir(parents=True)
+    spec.summary_path.write_text(json.dumps({"runs": [record, stale]}))
+    summary = S.run_sweep(S.SweepConfig(spec=spec_path, dry_run=True))
+    out = capsys.readouterr().out
+    assert "1 finished (skipped; 1 of them recorded in" in out
+    assert short.id not in out.split("new")[1] and long.id in out  # only `long` would train
+    assert summary["runs"][0] == record and summary["runs"][1]["status"] == "queued"
+    # A run directory here (say, a run in progress) wins over the record.
+    short.run_dir.mkdir(parents=True)
+    assert S.recorded_runs(spec, [short, long]) == {}
+
+
 def test_overrides_become_cli_flags():
     flags = S.overrides_to_flags(
         {"env.num_views": 3, "agent.residual": False, "replay.her_ratio": 0.5}, "train-residual", ""

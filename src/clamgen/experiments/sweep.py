@@ -15,9 +15,11 @@ the Ray worker, because
   a checkpoint continues from it.
 A run is finished when its policy file and its evaluation result exist; running the same sweep
 again skips finished runs, evaluates trained ones, resumes interrupted ones and retries failed
-ones. Locally (default) Ray gets as many CPUs as the machine has, or `--max-concurrent`; with
-`--address` the same runs go to an existing cluster (run directories must then be on a file
-system every node sees).
+ones. A run finished on another machine (its directory absent here) whose record in the
+committed summary is done, with test scores, under exactly the commands the spec gives now, is
+kept from that record instead of trained again. Locally (default) Ray gets as many CPUs as the
+machine has, or `--max-concurrent`; with `--address` the same runs go to an existing cluster
+(run directories must then be on a file system every node sees).
 
 The spec (TOML; paths relative to the current directory):
 
@@ -563,12 +565,41 @@ def _train_env(run_dir: Path) -> str | None:
     return None
 
 
+def recorded_runs(spec: SweepSpec, runs: list[Run]) -> dict[str, dict[str, Any]]:
+    """Runs finished elsewhere, by id: the records of the spec's existing summary that are done
+    with test scores, whose run directory does not exist here, and whose training and
+    evaluation commands are exactly those the spec gives now (a changed spec trains again)."""
+    try:
+        previous = json.loads(spec.summary_path.read_text())
+    except (OSError, ValueError):
+        return {}
+    by_id = {r.get("id"): r for r in previous.get("runs", []) if isinstance(r, dict)}
+    kept = {}
+    for run in runs:
+        record = by_id.get(run.id)
+        if (
+            record is not None
+            and record.get("status") == "done"
+            and record.get("test")
+            and not run.run_dir.exists()
+            and record.get("train_command") == "clamgen " + shlex.join(run.train_args)
+            and record.get("eval_command") == "clamgen " + shlex.join(run.eval_args)
+        ):
+            kept[run.id] = record
+    return kept
+
+
 def write_summary(
-    spec: SweepSpec, runs: list[Run], statuses: dict[str, dict], write: bool = True
+    spec: SweepSpec,
+    runs: list[Run],
+    statuses: dict[str, dict],
+    write: bool = True,
+    kept: dict[str, dict[str, Any]] | None = None,
 ) -> dict:
-    """The sweep's summary; written (atomically) to `spec.summary_path` unless `write` is
-    False."""
-    records = [run_record(r, **statuses[r.id]) for r in runs]
+    """The sweep's summary, with the `kept` records of runs finished elsewhere as they were;
+    written (atomically) to `spec.summary_path` unless `write` is False."""
+    kept = kept or {}
+    records = [kept.get(r.id) or run_record(r, **statuses[r.id]) for r in runs]
     counts = {s: sum(r["status"] == s for r in records) for s in ("done", "running", "failed")}
     counts["queued"] = len(records) - sum(counts.values())
     summary = {
@@ -627,10 +658,11 @@ def run_sweep(config: SweepConfig) -> dict:
     if config.max_concurrent is not None and config.max_concurrent < 1:
         raise SpecError(f"--max-concurrent must be >= 1, got {config.max_concurrent}")
     runs = plan_runs(spec)
+    kept = recorded_runs(spec, runs)
     statuses: dict[str, dict] = {r.id: {"status": "queued"} for r in runs}
     todo = []
     for run in runs:
-        if run.finished:
+        if run.finished or run.id in kept:
             statuses[run.id] = {"status": "done"}
         else:
             todo.append(run)
@@ -638,16 +670,17 @@ def run_sweep(config: SweepConfig) -> dict:
     to_evaluate = sum(r.trained for r in todo)
     print(
         f"sweep {spec.name}: {len(runs)} runs in {spec.run_root}; {len(runs) - len(todo)} "
-        f"finished (skipped), {resuming} to resume from checkpoints, {to_evaluate} to evaluate "
-        f"only, {len(todo) - resuming - to_evaluate} new"
+        f"finished (skipped; {len(kept)} of them recorded in {spec.summary_path}), {resuming} "
+        f"to resume from checkpoints, {to_evaluate} to evaluate only, "
+        f"{len(todo) - resuming - to_evaluate} new"
     )
     if config.dry_run:
         for run in todo:
             print(f"{run.id}:\n  clamgen {shlex.join(run.train_args)}")
             print(f"  clamgen {shlex.join(run.eval_args)}")
-        return write_summary(spec, runs, statuses, write=False)
+        return write_summary(spec, runs, statuses, write=False, kept=kept)
     if not todo:
-        summary = write_summary(spec, runs, statuses)
+        summary = write_summary(spec, runs, statuses, kept=kept)
         print(f"nothing to do; summary: {spec.summary_path}")
         return summary
     ray = _import_ray()
@@ -673,7 +706,7 @@ def run_sweep(config: SweepConfig) -> dict:
                 run = todo.pop(0)
                 pending[remote.remote(run)] = run
                 statuses[run.id] = {"status": "running"}
-            write_summary(spec, runs, statuses)
+            write_summary(spec, runs, statuses, kept=kept)
             if time.monotonic() - last_progress >= config.progress_every_s:
                 _progress(spec, runs, statuses, list(pending.values()))
                 last_progress = time.monotonic()
@@ -695,14 +728,14 @@ def run_sweep(config: SweepConfig) -> dict:
         ray.wait(list(pending), num_returns=len(pending), timeout=INTERRUPT_GRACE_S)
         for run in pending.values():
             statuses[run.id] = {"status": "queued"}
-        write_summary(spec, runs, statuses)
+        write_summary(spec, runs, statuses, kept=kept)
         raise SystemExit(
             f"sweep interrupted; run `clamgen sweep {spec.path}` again to resume"
         ) from None
     finally:
         if started_here:
             ray.shutdown()
-    summary = write_summary(spec, runs, statuses)
+    summary = write_summary(spec, runs, statuses, kept=kept)
     _progress(spec, runs, statuses, [])
     print(f"summary: {spec.summary_path}")
     return summary
