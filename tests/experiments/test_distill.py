@@ -16,6 +16,7 @@ from clamgen.experiments.distill import (
     Distiller,
     DistillSettings,
     pose_loss,
+    scale_lengths,
 )
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer
@@ -150,6 +151,19 @@ def test_the_pose_loss_ignores_the_order_of_the_obstacles():
     poses = torch.arange(2 * 2 * 8, dtype=torch.float32).view(2, 2, 8)
     assert float(pose_loss(poses.flip(1), poses)) == 0.0
     assert float(pose_loss(poses + 1, poses)) == 1.0
+
+
+def test_pose_lengths_are_measured_in_the_length_scale():
+    pose = torch.tensor([[[1.0, 0.0, 0.5, -0.1, 0.2, 0.05, 0.05, 0.1]]])
+    scaled = scale_lengths(pose, 0.05)
+    expected = torch.tensor([[[1.0, 0.0, 10.0, -2.0, 4.0, 1.0, 1.0, 2.0]]])
+    torch.testing.assert_close(scaled, expected)
+    # A 5 cm error in one centre coordinate costs 1 / 8 (the mean over 8 numbers) at 0.05 m.
+    off = pose.clone()
+    off[0, 0, 2] += 0.05
+    assert float(pose_loss(scale_lengths(off, 0.05), scaled)) == pytest.approx(1 / 8)
+    with pytest.raises(ValueError, match=r"distill\.pose_length_scale_m"):
+        DistillSettings(pose_length_scale_m=0.0)
 
 
 def test_a_lookahead_teacher_labels_with_its_plans_and_reports_their_cost(
