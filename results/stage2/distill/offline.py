@@ -9,7 +9,11 @@ with no collection at all. This builds the run's student afresh (same config and
 `--set` changes to its distill settings), regresses it `--updates` steps on all of the run's
 data, scores it on the distillation's 100 validation tasks, and writes `policy.pt` and
 `student.pt` (which `pose_error.py` and `validate.py` read) to OUT. Behaviour cloning on the
-DAgger data, not DAgger: use it to compare losses, not as a final student.
+DAgger data, not DAgger: use it to compare losses and data, not as a final student.
+
+`--iterations K` uses the run's first K iterations only (how success grows with data);
+`--pool RUN ...` adds the data of other runs of the same teacher, their views cut to the
+student's (a 3-view run's data holds the first two cameras a 2-view student sees).
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ def main() -> None:
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("out", type=Path)
     parser.add_argument("--updates", type=int, default=24_000)
+    parser.add_argument("--iterations", type=int, default=None, help="the run's first K only")
+    parser.add_argument("--pool", type=Path, nargs="*", default=[], help="other runs' data too")
     parser.add_argument(
         "--set",
         nargs="*",
@@ -55,9 +61,20 @@ def main() -> None:
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
     distiller = Distiller(DistillConfig(student=student, distill=settings))
-    for path in sorted((args.run_dir / "data").glob("iteration*.npz")):
-        distiller.data.add(ckpt.load_npz(path))
-    print(f"{len(distiller.data)} samples from {args.run_dir}; {args.updates} updates ...")
+    views = student.env.num_views
+    sources = [(args.run_dir, args.iterations), *((run, None) for run in args.pool)]
+    for run, first in sources:
+        paths = sorted(
+            (run / "data").glob("iteration*.npz"), key=lambda p: int(p.stem[len("iteration") :])
+        )
+        for path in paths[:first]:
+            chunk = ckpt.load_npz(path)
+            if chunk["images"].shape[1] < views:
+                raise SystemExit(f"{path} has {chunk['images'].shape[1]} views, fewer than {views}")
+            chunk["images"] = chunk["images"][:, :views]
+            distiller.data.add(chunk)
+        print(f"{len(distiller.data)} samples after {run} ({len(paths[:first])} iterations)")
+    print(f"{args.updates} updates ...")
     loss = distiller._regress(args.updates, "offline", show_progress=True)
     scores = distiller._validate()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -67,13 +84,22 @@ def main() -> None:
         "pose_head": distiller.pose_head.state_dict(),
         "settings": dataclasses.asdict(settings),
         "source": str(args.run_dir),
+        "pool": [str(run) for run in args.pool],
         "updates": args.updates,
     }
     ckpt.save_torch(args.out / STATE_NAME, {"format": ckpt.FORMAT, "kind": "distill", **state})
     (args.out / "config.json").write_text(
         json.dumps({"student": saved["student"], "distill": dataclasses.asdict(settings)}, indent=2)
     )
-    row = {"source": str(args.run_dir), "changes": changes, "updates": args.updates, "loss": loss}
+    row = {
+        "source": str(args.run_dir),
+        "iterations": args.iterations,
+        "pool": [str(run) for run in args.pool],
+        "samples": len(distiller.data),
+        "changes": changes,
+        "updates": args.updates,
+        "loss": loss,
+    }
     row |= {f"validation/{k}": v for k, v in scores.items()}
     print(json.dumps(row))
     with (args.out / "offline.json").open("w") as f:
