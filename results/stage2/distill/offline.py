@@ -78,7 +78,15 @@ def main() -> None:
     loss = distiller._regress(args.updates, "offline", show_progress=True)
     scores = distiller._validate()
     args.out.mkdir(parents=True, exist_ok=True)
-    ckpt.save_torch(args.out / POLICY_NAME, distiller._payload(0))
+    payload = distiller._payload("offline")
+    payload["offline"] = {
+        "source": str(args.run_dir),
+        "iterations": args.iterations,
+        "pool": [str(run) for run in args.pool],
+        "samples": len(distiller.data),
+        "updates": args.updates,
+    }
+    ckpt.save_torch(args.out / POLICY_NAME, payload)
     state = {
         "student": distiller.student.state_dict(),
         "pose_head": distiller.pose_head.state_dict(),
