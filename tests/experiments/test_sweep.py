@@ -296,7 +296,8 @@ def test_sweep_on_local_ray_is_killed_and_resumes_without_redoing_finished_work(
     second = _sweep_process(spec, log)
     assert second.wait(timeout=600) == 0, log.read_text()[-3000:]
     text = log.read_text()
-    assert "1 finished (skipped), 1 to resume from checkpoints" in text
+    assert "1 finished (skipped; 0 of them recorded in" in text
+    assert "summary.json), 1 to resume from checkpoints" in text
     assert "done long/seed0 (resumed from its checkpoint)" in text
     # Nothing of the finished run was touched, and it was trained and evaluated once.
     assert {p.name: p.stat().st_mtime_ns for p in short.iterdir() if p.is_file()} == short_files
