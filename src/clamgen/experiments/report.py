@@ -518,6 +518,11 @@ def _f(row: dict, key: str) -> float | None:
         return None
 
 
+def _reference_row(rows: list[dict], ratio_key: str) -> dict | None:
+    """The row a benchmark measured the others against: the one whose ratio is exactly 1."""
+    return next((r for r in rows if _f(r, ratio_key) == 1.0), None)
+
+
 def speed_entries(directory: Path) -> list[SpeedEntry]:
     """The benchmark CSVs as comparisons that name their reference (benchmarks/<file>.py
     documents each measurement)."""
@@ -574,7 +579,7 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
         entries = []
         for r in rows:
             same_batch = [q for q in rows if q.get("batch") == r.get("batch")]
-            reference = next((q for q in same_batch if _f(q, "speedup_vs_reference") == 1.0), None)
+            reference = _reference_row(same_batch, "speedup_vs_reference")
             if reference is r:
                 continue
             entries.append(
@@ -608,7 +613,7 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
             for r in rows
         ]
     if stem == "act_latency":
-        reference = next((r for r in rows if _f(r, "ratio_to_reference") == 1.0), None)
+        reference = _reference_row(rows, "ratio_to_reference")
         entries = []
         for r in rows:
             if r is reference:
@@ -642,7 +647,7 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
             for r in rows
         ]
     if stem == "update_cost":
-        reference = next((r for r in rows if _f(r, "speedup_vs_reference") == 1.0), None)
+        reference = _reference_row(rows, "speedup_vs_reference")
         return [
             SpeedEntry(
                 f"stage-2 update ({r['preset']}, batch {r['batch']}, {r['threads']} thread): "
