@@ -133,7 +133,7 @@ def test_a_rerun_resumes_after_the_last_iteration_and_refuses_other_settings(
     assert success == [row["validation/success_rate"] for row in summary["iterations"]]
 
 
-def test_the_teacher_must_be_privileged_and_the_student_must_see_images(
+def test_the_teacher_must_be_privileged_and_settings_are_checked(
     tmp_path,
     base_policy,
     teacher,
@@ -145,6 +145,41 @@ def test_the_teacher_must_be_privileged_and_the_student_must_see_images(
         Distiller(DistillConfig(student=student, distill=DistillSettings(teacher="residual-1view")))
     with pytest.raises(ValueError, match=r"distill\.iterations"):
         DistillSettings(iterations=0)
+
+
+def test_a_privileged_student_imitates_from_true_poses_without_rendering(
+    tmp_path,
+    base_policy,
+    teacher,
+):
+    preset = load_preset("residual-obstacles", Stage2Config)
+    student = dataclasses.replace(
+        preset,
+        run_dir=tmp_path / "student",
+        base_policy=base_policy,
+        env=dataclasses.replace(preset.env, env_id="CLAMGen/ReachMixed-v0", num_envs=2),
+        agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
+        loop=LOOP,
+    )
+    settings = DistillSettings(
+        teacher=teacher,
+        iterations=2,
+        episodes_per_iteration=3,
+        updates_per_iteration=4,
+        num_eval_episodes=2,
+    )
+    distiller = Distiller(DistillConfig(student=student, distill=settings))
+    before = [p.detach().clone() for p in distiller.pose_head.parameters()]
+    summary = distiller.run(show_progress=False)
+    assert [row["iteration"] for row in summary["iterations"]] == [0, 1]
+    data = distiller.data.arrays
+    assert "images" not in data
+    assert len(data["obstacles"]) == len(data["label"]) >= 6
+    # The pose loss is for vision students: the privileged student's pose head is untouched.
+    for old, new in zip(before, distiller.pose_head.parameters(), strict=True):
+        assert torch.equal(old, new)
+    policy = load_policy(str(student.run_dir / POLICY_NAME))
+    assert policy is not None
 
 
 def test_the_pose_loss_ignores_the_order_of_the_obstacles():

@@ -112,6 +112,29 @@ def test_labels_are_clipped_pre_squash_actions_and_plans_shift():
     assert plan.shape == (10, 6) and not plan[-1].any()
 
 
+@pytest.mark.parametrize("fixed", [True, False])
+def test_fixed_offsets_search_the_same_library_at_every_state(fixed):
+    env = blocked_env()
+    obs, _ = env.reset(seed=0)
+    teacher = LookaheadTeacher(
+        BlindAgent(), num_obstacles=2, candidates=4, horizon=10, seed=1, fixed_offsets=fixed
+    )
+    searched = []
+    rollout = teacher.rollout
+
+    def recording(state, plans, margin_m=0.0):
+        if len(plans) > 1:
+            searched.append(plans[1:].copy())
+        return rollout(state, plans, margin_m)
+
+    teacher.rollout = recording
+    zero = teacher.new_plan()
+    for _ in range(2):  # the same state, searched twice from the same (empty) plan
+        teacher.act(env.get_state(), obs, zero, known_clean=False)
+    assert len(searched) == 2
+    assert np.array_equal(searched[0], searched[1]) == fixed
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [{"candidates": 0}, {"horizon": 0}, {"segments": 0}, {"noise": -1.0}, {"margin_m": -0.01}],

@@ -24,6 +24,10 @@ clipped to +-`TARGET_CLIP`, so that a saturated action is still learned as satur
 chasing an unbounded target. The student's policy file is a residual policy like
 `clamgen train-residual`'s: `clamgen eval` and `clamgen render` take it.
 
+The student may also be a privileged residual (`agent.obs_source obstacles`: true obstacle
+poses, nothing rendered). Its result is the bound of what imitation of this teacher reaches with
+perfect perception, and it trains several times faster: recipes are tuned on it first.
+
 Resumable at iteration granularity: each iteration's data and the student after it are written
 to the run directory; running the same command again continues after the last finished one.
 """
@@ -61,7 +65,8 @@ TARGET_CLIP = lookahead.PRE_SQUASH_CLIP
 # Env reset seeds of distillation episodes: training seeds far from the RL runs' (loop seed *
 # 1000 + env index) and from results/stage2/tune/distill.py's.
 DISTILL_SEED_BASE = 800_000_000
-# Observation keys the student reads (the teacher also reads `obstacles`).
+# Observation keys a vision student reads (the teacher also reads `obstacles`); a privileged
+# student (`student_keys`) reads `obstacles` in place of `images`.
 STUDENT_KEYS = ("images", "observation", "achieved_goal", "desired_goal")
 STATE_NAME = "student.pt"
 # Numbers per obstacle in the `obstacles` observation (`Obstacles.as_array`): the kind's one-hot
@@ -92,9 +97,9 @@ class DistillSettings:
     like an iteration, saved as `policy_final.pt`, and becomes `policy.pt` if it is the best.
     A finished run is polished by running it again with this set. 0: none."""
     pose_weight: float = 1.0
-    """Weight of an auxiliary loss that regresses the obstacles' true poses from the student's
-    visual encoding (a training-only linear head; the loss takes the best matching of the
-    predicted to the true obstacles, whose order is arbitrary). 0: off."""
+    """Vision students: weight of an auxiliary loss that regresses the obstacles' true poses
+    from the student's visual encoding (a training-only linear head; the loss takes the best
+    matching of the predicted to the true obstacles, whose order is arbitrary). 0: off."""
     pose_length_scale_m: float = 1.0
     """Lengths in the pose loss are measured in this unit (m). In metres (1.0, every run
     before it was added) an error of 8 cm costs 0.0064, a hundredth of the action loss, so the
@@ -116,6 +121,10 @@ class DistillSettings:
     lookahead_margin_m: float = lookahead.MARGIN_M
     """Clearance (m) the lookahead's plans keep from obstacles and the table where they can,
     so that the student's labels leave room for its own errors (0: true contact)."""
+    lookahead_fixed_offsets: bool = False
+    """The lookahead searches among one fixed library of perturbed plans (drawn once from the
+    seed) instead of fresh draws at every search, so that nearby states get consistent labels
+    (`clamgen.experiments.lookahead`). False: fresh draws, as every run before it was added."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -160,11 +169,17 @@ class DistillConfig:
     """The DAgger loop."""
 
 
+def student_keys(obs_source: str) -> tuple[str, ...]:
+    """Observation keys a student of this `agent.obs_source` reads."""
+    return STUDENT_KEYS if obs_source == "images" else ("obstacles", *STUDENT_KEYS[1:])
+
+
 class _Dataset:
     """The aggregated (student input, teacher label) pairs, in growing numpy arrays."""
 
-    def __init__(self) -> None:
+    def __init__(self, keys: tuple[str, ...] = STUDENT_KEYS) -> None:
         self.arrays: dict[str, np.ndarray] = {}
+        self.keys = keys
 
     def add(self, chunk: dict[str, np.ndarray]) -> None:
         if not self.arrays:
@@ -176,7 +191,7 @@ class _Dataset:
         return len(self.arrays.get("label", ()))
 
     def batch(self, index: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        obs = {k: self.arrays[k][index] for k in STUDENT_KEYS}
+        obs = {k: self.arrays[k][index] for k in self.keys}
         return obs, self.arrays["label"][index]
 
 
@@ -197,8 +212,10 @@ class Distiller:
                 "(agent.obs_source 'obstacles')"
             )
         student = config.student
-        if student.agent.obs_source != "images":
-            raise ValueError("the student must be a vision residual (agent.obs_source 'images')")
+        # A privileged student (true obstacle poses, nothing rendered) is the bound of what
+        # imitation reaches with perfect perception; the pose loss is for vision students.
+        self.vision = student.agent.obs_source == "images"
+        self.keys = student_keys(student.agent.obs_source)
         torch.set_num_threads(student.loop.torch_threads)
         self.run_dir = Path(student.run_dir)
         # Collection envs show the teacher the poses too; the student's own env does not.
@@ -220,6 +237,7 @@ class Distiller:
                 segments=settings.lookahead_segments,
                 seed=settings.seed,
                 margin_m=settings.lookahead_margin_m,
+                fixed_offsets=settings.lookahead_fixed_offsets,
             )
             if settings.lookahead_candidates
             else None
@@ -232,11 +250,11 @@ class Distiller:
         params = [
             *self.student.critic.encoder.parameters(),
             *self.student.actor.parameters(),
-            *(self.pose_head.parameters() if settings.pose_weight > 0 else ()),
+            *(self.pose_head.parameters() if self._pose_loss_on() else ()),
         ]
         self.optimizer = torch.optim.Adam(params, lr=settings.lr)
         self.rng = np.random.default_rng([settings.seed, 1])
-        self.data = _Dataset()
+        self.data = _Dataset(self.keys)
         self.history: list[dict[str, Any]] = []
         self.final: dict[str, Any] | None = None  # the polished student's validation
         self.next_seed = DISTILL_SEED_BASE + settings.seed * 100_000
@@ -328,7 +346,8 @@ class Distiller:
         the student-driven (`rollout_success`) and teacher-driven episodes (None: none such),
         and the lookahead's rollouts and searches."""
         wanted = self.config.distill.episodes_per_iteration
-        rows: dict[str, list[np.ndarray]] = {k: [] for k in (*STUDENT_KEYS, "obstacles", "label")}
+        saved = tuple(dict.fromkeys((*self.keys, "obstacles")))
+        rows: dict[str, list[np.ndarray]] = {k: [] for k in (*saved, "label")}
         driver = [False] * len(self.envs)
         obs = [self._reset(i, share, driver) for i in range(len(self.envs))]
         started, finished = len(self.envs), 0
@@ -348,7 +367,7 @@ class Distiller:
                 student = labels  # not acted on: the teacher drives every episode
             else:
                 student = self.student.act(batch, deterministic=True)
-            for key in (*STUDENT_KEYS, "obstacles"):
+            for key in saved:
                 rows[key].append(batch[key])
             rows["label"].append(labels.astype(np.float32))
             still = []
@@ -409,7 +428,7 @@ class Distiller:
             index = self.rng.integers(0, len(self.data), batch_size)
             obs, labels = self.data.batch(index)
             loss, visual = self.student.imitation_loss(obs, torch.as_tensor(labels))
-            if self.config.distill.pose_weight > 0:
+            if self._pose_loss_on():
                 poses = torch.as_tensor(self.data.arrays["obstacles"][index])
                 loss = loss + self.config.distill.pose_weight * pose_loss(
                     self.pose_head(visual).view(poses.shape),
@@ -422,6 +441,9 @@ class Distiller:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
         return loss_value
+
+    def _pose_loss_on(self) -> bool:
+        return self.vision and self.config.distill.pose_weight > 0
 
     def _validate(self) -> dict[str, float]:
         seeds = VALIDATION_SEEDS.seeds(self.config.distill.num_eval_episodes)

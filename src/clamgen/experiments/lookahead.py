@@ -16,6 +16,12 @@ distillation need not act fast and may use the simulator itself, so this one pla
 4. it acts (or labels, for the student) with the residual's mean plus the plan's first offset,
    and shifts the plan by one step.
 
+With `fixed_offsets` the perturbed plans' offsets are drawn once, a fixed library of
+candidates, instead of anew at every search. The teacher then chooses among the same plans at
+nearby states, so its labels are a consistent function of the state: with fresh draws, two
+nearby states may be labelled "pass left" and "pass right" by chance, and a student regressing
+both learns their average, which runs into the obstacle.
+
 With a clearance `margin_m` > 0 the rollouts count any approach closer than that to an
 obstacle or the table as a collision (the planning envs' `collision_margin_m`), so the plans it
 keeps pass obstacles with room to spare; where no candidate keeps the clearance (a goal close
@@ -104,6 +110,7 @@ class LookaheadTeacher:
         segments: int = SEGMENTS,
         seed: int = 0,
         margin_m: float = MARGIN_M,
+        fixed_offsets: bool = False,
     ) -> None:
         if candidates < 1 or horizon < 1 or segments < 1 or not noise >= 0:
             raise ValueError(
@@ -119,6 +126,8 @@ class LookaheadTeacher:
         self.segments = segments
         self.margin_m = float(margin_m)
         self.rng = np.random.default_rng(seed)
+        # The library of offsets every search uses with `fixed_offsets` (None: drawn anew).
+        self.offsets = self._draw_offsets() if fixed_offsets else None
         self._env_kwargs = {
             "num_obstacles": num_obstacles,
             "include_obstacle_state": True,
@@ -171,7 +180,7 @@ class LookaheadTeacher:
         horizon = len(plan)
         cuts = np.linspace(0, horizon, self.segments + 1).round().astype(int)
         steps = np.repeat(np.arange(self.segments), np.diff(cuts))
-        noise = self.rng.normal(0.0, self.noise, (self.candidates, self.segments, 6))
+        noise = self._draw_offsets() if self.offsets is None else self.offsets
         centres = np.where(np.arange(self.candidates)[:, None, None] % 2 == 0, plan[None], 0.0)
         perturbed = (centres + noise[:, steps]).astype(np.float32)
         plans = np.concatenate([np.zeros((1, horizon, 6), np.float32), perturbed])
@@ -180,6 +189,9 @@ class LookaheadTeacher:
         if outcomes[best].score() <= outcome.score():
             return plan, outcome
         return plans[best], outcomes[best]
+
+    def _draw_offsets(self) -> np.ndarray:
+        return self.rng.normal(0.0, self.noise, (self.candidates, self.segments, 6))
 
     # ------------------------------------------------------------------ rollouts
     def rollout(self, state: EnvState, plans: np.ndarray, margin_m: float = 0.0) -> list[Outcome]:
