@@ -18,6 +18,7 @@ from clamgen.experiments.distill import (
     pose_loss,
     scale_lengths,
 )
+from clamgen.experiments.lookahead import LookaheadPolicy
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer
 from clamgen.experiments.sweep import read_validation
@@ -201,21 +202,38 @@ def test_pose_lengths_are_measured_in_the_length_scale():
         DistillSettings(pose_length_scale_m=0.0)
 
 
+@pytest.mark.parametrize("prefer_student", [False, True])
 def test_a_lookahead_teacher_labels_with_its_plans_and_reports_their_cost(
-    tmp_path,
-    base_policy,
-    teacher,
+    tmp_path, base_policy, teacher, prefer_student, monkeypatch
 ):
     config = distill_config(
-        tmp_path, base_policy, teacher, lookahead_candidates=3, lookahead_horizon=6
+        tmp_path,
+        base_policy,
+        teacher,
+        lookahead_candidates=3,
+        lookahead_horizon=6,
+        lookahead_prefer_student=prefer_student,
+        teacher_share=0.0,  # the student drives every episode after iteration 0
     )
     distiller = Distiller(config)
+    preferences = []
+    label = LookaheadPolicy.label
+
+    def recording(self, obs, prefer=None):
+        preferences.append(prefer)
+        return label(self, obs, prefer)
+
+    monkeypatch.setattr(LookaheadPolicy, "label", recording)
     summary = distiller.run(show_progress=False)
     first, second = summary["iterations"]
     assert first["teacher_success"] is not None and first["rollout_success"] is None
     assert first["lookahead_rollouts"] >= 3  # at least one rollout per episode
     assert second["lookahead_rollouts"] > 0
     assert np.abs(distiller.data.arrays["label"]).max() <= TARGET_CLIP
+    # Only the student's episodes (iteration 1 on) carry its action as the preference.
+    offered = [p for p in preferences if p is not None]
+    assert bool(offered) == prefer_student
+    assert all(p.shape == (6,) and np.abs(p).max() <= TARGET_CLIP + 1e-5 for p in offered)
     with pytest.raises(ValueError, match=r"distill\.lookahead_horizon"):
         DistillSettings(lookahead_horizon=0)
     with pytest.raises(ValueError, match=r"distill\.lookahead_margin_m"):

@@ -135,6 +135,30 @@ def test_fixed_offsets_search_the_same_library_at_every_state(fixed):
     assert np.array_equal(searched[0], searched[1]) == fixed
 
 
+def test_a_search_keeps_the_clean_plan_nearest_to_the_preferred_action():
+    env = blocked_env()
+    obs, _ = env.reset(seed=0)
+    teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=16, horizon=40, seed=2)
+    searches = []
+    rollout = teacher.rollout
+
+    def recording(state, plans, margin_m=0.0):
+        outcomes = rollout(state, plans, margin_m)
+        if len(plans) > 1:
+            searches.append((plans.copy(), outcomes))
+        return outcomes
+
+    teacher.rollout = recording
+    mean = BlindAgent().mean_action({k: v[None] for k, v in obs.items()})[0]
+    for prefer in (np.full(6, 2.0), np.full(6, -2.0)):
+        label, _, clean = teacher.act(env.get_state(), obs, teacher.new_plan(), False, prefer)
+        plans, outcomes = searches[-1]
+        firsts = [mean + plans[i, 0] for i, o in enumerate(outcomes) if o.clean]
+        assert clean and len(firsts) > 1
+        nearest = min(firsts, key=lambda a: np.linalg.norm(a - prefer))
+        np.testing.assert_allclose(label, np.clip(nearest, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP))
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [{"candidates": 0}, {"horizon": 0}, {"segments": 0}, {"noise": -1.0}, {"margin_m": -0.01}],

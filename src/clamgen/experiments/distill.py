@@ -121,6 +121,11 @@ class DistillSettings:
     lookahead_margin_m: float = lookahead.MARGIN_M
     """Clearance (m) the lookahead's plans keep from obstacles and the table where they can,
     so that the student's labels leave room for its own errors (0: true contact)."""
+    lookahead_prefer_student: bool = False
+    """In the student's episodes, the lookahead's searches keep the clean plan nearest to the
+    student's own action instead of the earliest arrival, so that labels keep the side of an
+    obstacle the student takes (`clamgen.experiments.lookahead`). False: the earliest, as
+    every run before it was added."""
     lookahead_fixed_offsets: bool = False
     """The lookahead searches among one fixed library of perturbed plans (drawn once from the
     seed) instead of fresh draws at every search, so that nearby states get consistent labels
@@ -359,14 +364,19 @@ class Distiller:
             counts = (self.lookahead.rollouts, self.lookahead.searches)
         while active:
             batch = {k: np.stack([obs[i][k] for i in active]) for k in obs[active[0]]}
+            if all(driver[i] for i in active):
+                student = None  # the teacher drives every episode
+            else:
+                student = self.student.act(batch, deterministic=True)
             if self.lookahead is None:
                 labels = np.clip(self.teacher.mean_action(batch), -TARGET_CLIP, TARGET_CLIP)
             else:
-                labels = np.stack([self.planners[i].label(obs[i]) for i in active])
-            if all(driver[i] for i in active):
-                student = labels  # not acted on: the teacher drives every episode
-            else:
-                student = self.student.act(batch, deterministic=True)
+                labels = np.stack(
+                    [
+                        self.planners[i].label(obs[i], self._preferred(student, j, driver[i]))
+                        for j, i in enumerate(active)
+                    ]
+                )
             for key in saved:
                 rows[key].append(batch[key])
             rows["label"].append(labels.astype(np.float32))
@@ -399,6 +409,12 @@ class Distiller:
             stats["lookahead_rollouts"] = self.lookahead.rollouts - counts[0]
             stats["lookahead_searches"] = self.lookahead.searches - counts[1]
         return chunk, stats
+
+    def _preferred(self, student: np.ndarray | None, j: int, teacher_drives: bool):
+        """The student's pre-squash action for the lookahead to prefer (None: no preference)."""
+        if student is None or teacher_drives or not self.config.distill.lookahead_prefer_student:
+            return None
+        return np.arctanh(np.clip(student[j], -np.tanh(TARGET_CLIP), np.tanh(TARGET_CLIP)))
 
     def _reset(self, i: int, share: float, driver: list[bool]) -> dict[str, np.ndarray]:
         seed = self.next_seed

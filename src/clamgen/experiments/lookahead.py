@@ -22,6 +22,13 @@ nearby states, so its labels are a consistent function of the state: with fresh 
 nearby states may be labelled "pass left" and "pass right" by chance, and a student regressing
 both learns their average, which runs into the obstacle.
 
+Labelling a student's states, the teacher may also prefer the student's own choice
+(`prefer`): where a search runs, the clean arrival whose first action is nearest to the
+student's action wins instead of the earliest. Where the obstacle can be passed on either side,
+the label then keeps the side the student already takes instead of the side a random search
+found first, so that its labels at nearby states do not pull both ways (DAgger with a
+multimodal expert).
+
 With a clearance `margin_m` > 0 the rollouts count any approach closer than that to an
 obstacle or the table as a collision (the planning envs' `collision_margin_m`), so the plans it
 keeps pass obstacles with room to spare; where no candidate keeps the clearance (a goal close
@@ -144,38 +151,53 @@ class LookaheadTeacher:
         return np.zeros((self.horizon, 6), dtype=np.float32)
 
     def act(
-        self, state: EnvState, obs: dict[str, np.ndarray], plan: np.ndarray, known_clean: bool
+        self,
+        state: EnvState,
+        obs: dict[str, np.ndarray],
+        plan: np.ndarray,
+        known_clean: bool,
+        prefer: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """(label, next plan, next known_clean) at `state` (observation `obs`, unbatched).
 
         label: the pre-squash action (6,), clipped to +-PRE_SQUASH_CLIP; acting means
         tanh(label). known_clean: `plan` is already known to arrive without a collision from
         this state (the teacher drove here along it); the returned flag says the same of the
-        next state, if the label is executed exactly."""
+        next state, if the label is executed exactly. prefer: a pre-squash action (6,), the
+        student's; when a search runs, the clean arrival whose first action is nearest to it
+        wins instead of the earliest (None: the earliest)."""
         horizon = max(1, min(self.horizon, MAX_EPISODE_STEPS - state.num_steps))
         plan = plan[:horizon]
-        if not known_clean:
-            plan, outcome = self._plan(state, plan, self.margin_m)
-            if not outcome.clean and self.margin_m > 0:
-                plan, outcome = self._plan(state, plan, 0.0)
-            known_clean = outcome.clean
         batch = {k: v[None] for k, v in obs.items()}
         mean = self.agent.mean_action(batch)[0]
+        wanted = None if prefer is None else prefer - mean
+        if not known_clean:
+            plan, outcome = self._plan(state, plan, self.margin_m, wanted)
+            if not outcome.clean and self.margin_m > 0:
+                plan, outcome = self._plan(state, plan, 0.0, wanted)
+            known_clean = outcome.clean
         label = np.clip(mean + plan[0], -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
         following = np.zeros((self.horizon, 6), dtype=np.float32)
         following[: len(plan) - 1] = plan[1:]
         # A plan that arrives this very step leaves nothing to know about the next state.
         return label.astype(np.float32), following, known_clean and len(plan) > 1
 
-    def _plan(self, state: EnvState, plan: np.ndarray, margin_m: float):
+    def _plan(self, state: EnvState, plan: np.ndarray, margin_m: float, wanted=None):
         """(plan, its outcome): `plan` if it arrives cleanly with clearance `margin_m`, else the
-        best of a search around it."""
+        best of a search around it (`wanted`: the first offset preferred among clean arrivals)."""
         (outcome,) = self.rollout(state, plan[None], margin_m)
         if outcome.clean:
             return plan, outcome
-        return self._search(state, plan, outcome, margin_m)
+        return self._search(state, plan, outcome, margin_m, wanted)
 
-    def _search(self, state: EnvState, plan: np.ndarray, outcome: Outcome, margin_m: float):
+    def _search(
+        self,
+        state: EnvState,
+        plan: np.ndarray,
+        outcome: Outcome,
+        margin_m: float,
+        wanted: np.ndarray | None = None,
+    ):
         self.searches += 1
         horizon = len(plan)
         cuts = np.linspace(0, horizon, self.segments + 1).round().astype(int)
@@ -185,6 +207,10 @@ class LookaheadTeacher:
         perturbed = (centres + noise[:, steps]).astype(np.float32)
         plans = np.concatenate([np.zeros((1, horizon, 6), np.float32), perturbed])
         outcomes = self.rollout(state, plans, margin_m)
+        clean = [i for i, o in enumerate(outcomes) if o.clean]
+        if wanted is not None and clean:
+            best = min(clean, key=lambda i: float(np.linalg.norm(plans[i, 0] - wanted)))
+            return plans[best], outcomes[best]
         best = int(np.argmax([o.score() for o in outcomes]))
         if outcomes[best].score() <= outcome.score():
             return plan, outcome
@@ -256,14 +282,15 @@ class LookaheadPolicy:
         self._plan = self.teacher.new_plan()
         self._known_clean = False
 
-    def label(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        """The teacher's pre-squash action (6,) at the env's current state (observation `obs`);
-        the plan moves on by one step."""
+    def label(self, obs: dict[str, np.ndarray], prefer: np.ndarray | None = None) -> np.ndarray:
+        """The teacher's pre-squash action (6,) at the env's current state (observation `obs`;
+        `prefer`: the student's pre-squash action, `LookaheadTeacher.act`); the plan moves on
+        by one step."""
         if self._env is None:
             raise RuntimeError("LookaheadPolicy.reset(env) must be called before act or label")
         state = self._env.unwrapped.get_state()
         label, self._plan, self._known_clean = self.teacher.act(
-            state, obs, self._plan, self._known_clean
+            state, obs, self._plan, self._known_clean, prefer
         )
         return label
 
