@@ -464,6 +464,7 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
     for tick, row in zip(success_ax.get_yticklabels(), result.rows, strict=True):
         tick.set_color(colours[row])
     success_ax.set_xlim(-0.02, 1.12)
+    success_ax.set_ylim(-0.6, n - 0.4)  # runs' dots stay beside their row, even for one row
     success_ax.set_xlabel("test success rate")
     success_ax.set_title("(a) test success: IQM (diamond, 95% CI),\nruns (dots), paper (x)")
     success_ax.grid(alpha=0.3, axis="x")
