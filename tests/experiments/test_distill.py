@@ -183,6 +183,39 @@ def test_a_privileged_student_imitates_from_true_poses_without_rendering(
     assert policy is not None
 
 
+def test_collection_episodes_can_end_at_their_first_collision(tmp_path, base_policy, teacher):
+    lengths = {}
+    for stop in (False, True):
+        config = distill_config(
+            tmp_path / str(stop),
+            base_policy,
+            teacher,
+            episodes_per_iteration=4,
+            teacher_share=0.0,
+            stop_at_collision=stop,
+        )
+        distiller = Distiller(config)
+        for env in distiller.envs:  # every episode "collides" at its second step
+            env_step, env_reset = env.step, env.reset
+            steps = [0]
+
+            def reset(*args, env_reset=env_reset, steps=steps, **kwargs):
+                steps[0] = 0
+                return env_reset(*args, **kwargs)
+
+            def step(action, env_step=env_step, steps=steps):
+                obs, reward, terminated, truncated, info = env_step(action)
+                steps[0] += 1
+                return obs, reward, terminated, truncated, {**info, "collision": steps[0] == 2}
+
+            env.reset, env.step = reset, step
+        chunk, stats = distiller._collect(0.0, 1, show_progress=False)
+        lengths[stop] = len(chunk["label"])
+        assert stats["rollout_success"] == 0.0
+    assert lengths[True] == 4 * 2  # each episode: its first step and the colliding one
+    assert lengths[False] > 4 * 2
+
+
 def test_the_pose_loss_ignores_the_order_of_the_obstacles():
     poses = torch.arange(2 * 2 * 8, dtype=torch.float32).view(2, 2, 8)
     assert float(pose_loss(poses.flip(1), poses)) == 0.0

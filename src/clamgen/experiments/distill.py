@@ -121,6 +121,12 @@ class DistillSettings:
     lookahead_margin_m: float = lookahead.MARGIN_M
     """Clearance (m) the lookahead's plans keep from obstacles and the table where they can,
     so that the student's labels leave room for its own errors (0: true contact)."""
+    stop_at_collision: bool = False
+    """Collection episodes end at their first collision. An episode that collided has failed
+    (success means no collision at any step), but the arm stops before contact and the episode
+    runs on: a student pressed against an obstacle until the time limit adds most of an
+    iteration's states, all after its failure. False: episodes run to the time limit, as
+    every run before it was added."""
     lookahead_prefer_student: bool = False
     """In the student's episodes, the lookahead's searches keep the clean plan nearest to the
     student's own action instead of the earliest arrival, so that labels keep the side of an
@@ -387,7 +393,8 @@ class Distiller:
                     self.planners[i].off_plan()
                 obs[i], _, terminated, truncated, info = self.envs[i].step(action)
                 collided[i] |= bool(info["collision"])
-                if not (terminated or truncated):
+                stop = collided[i] and self.config.distill.stop_at_collision
+                if not (terminated or truncated or stop):
                     still.append(i)
                     continue
                 finished += 1
