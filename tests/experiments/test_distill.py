@@ -2,6 +2,7 @@
 
 import dataclasses
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -122,6 +123,11 @@ def test_a_rerun_resumes_after_the_last_iteration_and_refuses_other_settings(
     more = distill_config(tmp_path, base_policy, teacher, iterations=2)
     with pytest.raises(ValueError, match="another configuration"):
         Distiller(distill_config(tmp_path, base_policy, teacher, lr=1e-3)).run(False)
+    # A run written before a setting existed resumes: the missing setting reads as its default.
+    path = first.student.run_dir / "config.json"
+    saved = json.loads(path.read_text())
+    del saved["distill"]["stop_at_collision"]
+    path.write_text(json.dumps(saved))
     resumed = Distiller(more)
     summary = resumed.run(show_progress=False)
     assert [row["iteration"] for row in summary["iterations"]] == [0, 1]

@@ -24,7 +24,7 @@ import json
 from pathlib import Path
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.config import config_from_json
+from clamgen.experiments.config import config_from_json, config_to_json
 from clamgen.experiments.distill import (
     STATE_NAME,
     DistillConfig,
@@ -43,6 +43,13 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=None, help="the run's first K only")
     parser.add_argument("--pool", type=Path, nargs="*", default=[], help="other runs' data too")
     parser.add_argument(
+        "--hidden-sizes",
+        type=int,
+        nargs="+",
+        default=None,
+        help="the student's actor and critic hidden layers (default: the run's)",
+    )
+    parser.add_argument(
         "--set",
         nargs="*",
         default=[],
@@ -53,6 +60,10 @@ def main() -> None:
     saved = json.loads((args.run_dir / "config.json").read_text())
     student = config_from_json(json.dumps(saved["student"]), Stage2Config)
     student = dataclasses.replace(student, run_dir=args.out)
+    if args.hidden_sizes:
+        agent = dataclasses.replace(student.agent, hidden_sizes=tuple(args.hidden_sizes))
+        student = dataclasses.replace(student, agent=agent)
+        saved["student"] = json.loads(config_to_json(student))
     changes = {}
     for item in args.set:
         name, _, value = item.partition("=")
@@ -69,9 +80,12 @@ def main() -> None:
         )
         for path in paths[:first]:
             chunk = ckpt.load_npz(path)
-            if chunk["images"].shape[1] < views:
-                raise SystemExit(f"{path} has {chunk['images'].shape[1]} views, fewer than {views}")
-            chunk["images"] = chunk["images"][:, :views]
+            if "images" in chunk:  # a vision run's data; a privileged student's has none
+                if chunk["images"].shape[1] < views:
+                    raise SystemExit(
+                        f"{path} has {chunk['images'].shape[1]} views, fewer than {views}"
+                    )
+                chunk["images"] = chunk["images"][:, :views]
             distiller.data.add(chunk)
         print(f"{len(distiller.data)} samples after {run} ({len(paths[:first])} iterations)")
     print(f"{args.updates} updates ...")
@@ -106,6 +120,7 @@ def main() -> None:
         "samples": len(distiller.data),
         "changes": changes,
         "updates": args.updates,
+        "hidden_sizes": list(student.agent.hidden_sizes),
         "loss": loss,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}

@@ -575,8 +575,9 @@ def scale_lengths(poses: torch.Tensor, length_scale_m: float) -> torch.Tensor:
 
 def _resumable_part(config: dict) -> dict:
     """A config's JSON without what a resumed run may change (the number of iterations, the
-    polishing)."""
-    return {**config, "distill": {**config["distill"], "iterations": None, "final_updates": None}}
+    polishing); distill settings added after the run was written read as their defaults."""
+    settings = {**dataclasses.asdict(DistillSettings()), **config["distill"]}
+    return {**config, "distill": {**settings, "iterations": None, "final_updates": None}}
 
 
 def distill(config: DistillConfig, show_progress: bool = True) -> dict[str, Any]:
