@@ -34,18 +34,23 @@ def base_policy(tmp_path_factory):
     return str(config.run_dir / POLICY_NAME)
 
 
-@pytest.fixture(scope="module")
-def teacher(tmp_path_factory, base_policy):
+def privileged_config(run_dir, base_policy) -> Stage2Config:
+    """A tiny privileged residual (true obstacle poses) on the mixed tasks."""
     preset = load_preset("residual-obstacles", Stage2Config)
-    config = dataclasses.replace(
+    return dataclasses.replace(
         preset,
-        run_dir=tmp_path_factory.mktemp("teacher") / "run",
+        run_dir=run_dir,
         base_policy=base_policy,
         env=dataclasses.replace(preset.env, env_id="CLAMGen/ReachMixed-v0", num_envs=2),
         agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
         replay=ReplayConfig(capacity=5_000),
         loop=LOOP,
     )
+
+
+@pytest.fixture(scope="module")
+def teacher(tmp_path_factory, base_policy):
+    config = privileged_config(tmp_path_factory.mktemp("teacher") / "run", base_policy)
     Stage2Trainer(config).run(show_progress=False)
     return str(config.run_dir / POLICY_NAME)
 
@@ -159,15 +164,7 @@ def test_a_privileged_student_imitates_from_true_poses_without_rendering(
     base_policy,
     teacher,
 ):
-    preset = load_preset("residual-obstacles", Stage2Config)
-    student = dataclasses.replace(
-        preset,
-        run_dir=tmp_path / "student",
-        base_policy=base_policy,
-        env=dataclasses.replace(preset.env, env_id="CLAMGen/ReachMixed-v0", num_envs=2),
-        agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
-        loop=LOOP,
-    )
+    student = privileged_config(tmp_path / "student", base_policy)
     settings = DistillSettings(
         teacher=teacher,
         iterations=2,
