@@ -25,8 +25,9 @@ chasing an unbounded target. The student's policy file is a residual policy like
 `clamgen train-residual`'s: `clamgen eval` and `clamgen render` take it.
 
 The student may also be a privileged residual (`agent.obs_source obstacles`: true obstacle
-poses, nothing rendered). Its result is the bound of what imitation of this teacher reaches with
-perfect perception, and it trains several times faster: recipes are tuned on it first.
+poses, nothing rendered), which trains in about half a vision student's time. Its encoder and
+batch are not the vision student's, so it is no upper bound for one: with the same loop it
+scores below the vision students (results/stage2/distill/README.md).
 
 Resumable at iteration granularity: each iteration's data and the student after it are written
 to the run directory; running the same command again continues after the last finished one.
@@ -175,7 +176,8 @@ class DistillConfig:
     the DAgger settings."""
 
     student: Stage2Config = field(default_factory=Stage2Config)
-    """The vision student: env (views, image size, task family), agent, base policy, run_dir."""
+    """The student (a vision residual, or a privileged one): env (views, image size, task
+    family), agent, base policy, run_dir."""
     distill: DistillSettings = field(default_factory=DistillSettings)
     """The DAgger loop."""
 
@@ -207,7 +209,7 @@ class _Dataset:
 
 
 class Distiller:
-    """DAgger from a privileged teacher into a vision student; see the module docstring."""
+    """DAgger from a privileged teacher into a student; see the module docstring."""
 
     def __init__(self, config: DistillConfig) -> None:
         self.config = config
@@ -223,8 +225,8 @@ class Distiller:
                 "(agent.obs_source 'obstacles')"
             )
         student = config.student
-        # A privileged student (true obstacle poses, nothing rendered) is the bound of what
-        # imitation reaches with perfect perception; the pose loss is for vision students.
+        # A student may read true obstacle poses instead of images (nothing rendered); the
+        # pose loss is for vision students.
         self.vision = student.agent.obs_source == "images"
         self.keys = student_keys(student.agent.obs_source)
         torch.set_num_threads(student.loop.torch_threads)
