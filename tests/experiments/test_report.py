@@ -5,7 +5,14 @@ import json
 
 import pytest
 
-from clamgen.experiments.report import ReportConfig, build_report
+from clamgen.experiments.report import (
+    ReportConfig,
+    RunResult,
+    aggregate_family,
+    build_report,
+    plot_family,
+    row_colours,
+)
 from clamgen.experiments.tables import ObstacleRow, SpeedRow
 
 
@@ -144,3 +151,29 @@ def test_a_run_shared_by_two_sweeps_counts_once(tmp_path):
     text = build_report(ReportConfig(results_dir=tmp_path, reps=100)).read_text()
     assert f"| {full} | 3 (0, 1, 2) | 0.910 (" in text
     assert f"| {ablation} | 2 (0, 1) | 0.500 (" in text
+
+
+def test_mixed_task_runs_draw_their_curves_in_both_obstacle_figures(tmp_path):
+    mixed, standard = "trained on the mix", "trained on standard tasks"
+    results = [
+        RunResult(mixed, 2, "images", {"obstacles": 0.9, "blocked": 0.7}, ([1, 2], [0.3, 0.6]),
+                  seed=s, train_env="CLAMGen/ReachMixed-v0")
+        for s in range(2)
+    ]  # fmt: skip
+    results.append(
+        RunResult(standard, 2, "images", {"obstacles": 0.8, "blocked": 0.4}, ([1, 2], [0.5, 0.7]),
+                  seed=0, train_env="CLAMGen/ReachObstacles-v0")
+    )  # fmt: skip
+    obstacles = aggregate_family(results, "obstacles", reps=50, seed=0)
+    blocked = aggregate_family(results, "blocked", reps=50, seed=0)
+    assert set(obstacles.curves) == {mixed, standard} and obstacles.mixed_curves == {mixed}
+    # The standard run validated on standard tasks only: no curve among the blocked ones.
+    assert set(blocked.curves) == {mixed} and blocked.mixed_curves == {mixed}
+    plot_family(blocked, row_colours(blocked.rows), tmp_path / "blocked.png")
+    assert (tmp_path / "blocked.png").stat().st_size > 1000
+
+
+def test_every_row_of_a_full_table_gets_its_own_colour():
+    rows = [f"row {i}" for i in range(30)]
+    colours = row_colours(rows)
+    assert len({tuple(c) for c in colours.values()}) == 30

@@ -112,6 +112,10 @@ name = "1 view, distilled"
     assert not run.trained and run.has_checkpoint
     (run.run_dir / "summary.json").write_text("{}")
     assert run.trained
+    # Its training env, which the report's curves need, sits under the student's settings.
+    config = {"student": {"env": {"env_id": "CLAMGen/ReachMixed-v0"}}, "distill": {}}
+    (run.run_dir / "config.json").write_text(json.dumps(config))
+    assert S._train_env(run.run_dir) == "CLAMGen/ReachMixed-v0"
     with pytest.raises(S.SpecError, match=r"distill\.seed is set by"):
         S.load_spec(
             write_spec(

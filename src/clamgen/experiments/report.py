@@ -29,6 +29,7 @@ import tyro
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from matplotlib.colors import to_rgba
 
 from clamgen.experiments import aggregate as agg
 from clamgen.experiments.tables import (
@@ -56,6 +57,10 @@ ENV_FAMILY = {
     "CLAMGen/ReachObstacles-v0": "obstacles",
     "CLAMGen/ReachBlocked-v0": "blocked",
 }
+# The mix of blocked and standard tasks: its runs validate on mixed tasks, and their curves are
+# drawn (dashed) in the figures of both families it mixes.
+MIXED_ENV = "CLAMGen/ReachMixed-v0"
+MIXED_FAMILIES = ("obstacles", "blocked")
 TABLE1_ROW = {"joints": "joint policy", "images": "image-only policy (2 views)"}
 # Which row full CLAMGen is for each ablation of the paper's Table 2 (same views).
 DEFAULT_COMPARISONS = {
@@ -66,10 +71,18 @@ DEFAULT_COMPARISONS = {
     "vanilla CURL + HER (3 views)": "CLAMGen, 3 RGBD views",
 }
 ROW_ORDER = [*TABLE1_ROW.values(), *PAPER_TABLE2]
-# Qualitative colours, one per row, in row order (tab10 first, then tab20's lighter shades).
-PALETTE = [plt.get_cmap("tab10")(i) for i in range(10)] + [
-    plt.get_cmap("tab20")(i) for i in range(1, 20, 2)
-]
+# Qualitative colours, one per row, in row order: tab10 first, then tab20's lighter shades, then
+# two shades of each of tab20b's five hues and tab20c's four (its greys left out): 38 in all,
+# as many distinct colours as a figure of every Table 2 row needs.
+PALETTE = (
+    [plt.get_cmap("tab10")(i) for i in range(10)]
+    + [plt.get_cmap("tab20")(i) for i in range(1, 20, 2)]
+    + [plt.get_cmap("tab20b")(i) for i in range(0, 20, 2)]
+    + [plt.get_cmap("tab20c")(i) for i in range(0, 16, 2)]
+)
+# Row names on the success panel are written in their row's colour, darkened by this share
+# towards black so that the light shades stay readable on white.
+LABEL_DARKEN = 0.35
 
 
 @dataclass(frozen=True)
@@ -141,12 +154,15 @@ class RunResult:
         return self.scores if self.table == 1 else {family: self.scores[family]}
 
     @property
-    def curve_family(self) -> str | None:
-        """The family whose validation tasks the curve is measured on."""
+    def curve_families(self) -> tuple[str, ...]:
+        """The families whose figures show the validation curve: the one whose validation tasks
+        it is measured on, or both families of the mix for runs trained on mixed tasks."""
+        if self.train_env == MIXED_ENV:
+            return MIXED_FAMILIES
         family = ENV_FAMILY.get(self.train_env or "")
         if family == "reach" and self.observation == "images":
-            return "image-only"
-        return family
+            return ("image-only",)
+        return (family,) if family else ()
 
 
 def _run_config(run_dir: Path | None) -> dict:
@@ -276,6 +292,8 @@ class FamilyAggregate:
     stats: dict[str, agg.RowAggregate]
     profiles: dict[str, agg.Profile]
     curves: dict[str, agg.Curve]
+    mixed_curves: set[str] = field(default_factory=set)
+    """Rows whose curves are validation on the mixed tasks, not on this family's alone."""
 
 
 def aggregate_family(
@@ -298,9 +316,12 @@ def aggregate_family(
             seeds[row] = [r.seed for r in runs]
     rows = [r for r in rows if r in scores]
     curve_runs: dict[str, list] = {}
+    mixed: set[str] = set()
     for r in results:
-        if r.curve_family == family and r.curve[0] and r.row in scores:
+        if family in r.curve_families and r.curve[0] and r.row in scores:
             curve_runs.setdefault(r.row, []).append(r.curve)
+            if r.train_env == MIXED_ENV:
+                mixed.add(r.row)
     return FamilyAggregate(
         family=family,
         rows=rows,
@@ -310,6 +331,7 @@ def aggregate_family(
         stats=agg.aggregate_rows(scores, reps=reps, seed=seed),
         profiles=agg.performance_profiles(scores, reps=reps, seed=seed),
         curves=agg.sample_efficiency_curves(curve_runs, reps=reps, seed=seed) if curve_runs else {},
+        mixed_curves=mixed,
     )
 
 
@@ -415,6 +437,11 @@ def row_colours(rows: Iterable[str]) -> dict[str, Any]:
     return {row: PALETTE[i % len(PALETTE)] for i, row in enumerate(ordered)}
 
 
+def _darken(colour: Any) -> tuple[float, ...]:
+    r, g, b, *_ = to_rgba(colour)
+    return tuple(c * (1 - LABEL_DARKEN) for c in (r, g, b))
+
+
 def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> Path:
     """Sample-efficiency curves (validation), test success over runs, performance profiles."""
     n = len(result.rows)
@@ -430,13 +457,16 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
         curve = result.curves.get(row)
         if curve is None:
             continue
-        colour = colours[row]
-        curves_ax.plot(curve.steps, curve.iqm, color=colour, lw=1.8, marker="o", ms=2.5)
+        colour, style = colours[row], "--" if row in result.mixed_curves else "-"
+        curves_ax.plot(curve.steps, curve.iqm, style, color=colour, lw=1.8, marker="o", ms=2.5)
         if curve.num_runs > 1:
             curves_ax.fill_between(
                 curve.steps, curve.iqm_low, curve.iqm_high, color=colour, alpha=0.2, lw=0
             )
-    curves_ax.set_title("(b) validation success during training\nIQM over runs, 95% band")
+    title = "(b) validation success during training\nIQM over runs, 95% band"
+    if result.mixed_curves:
+        title += "; dashed: on mixed tasks"
+    curves_ax.set_title(title)
     curves_ax.set_xlabel("environment steps")
     curves_ax.set_ylabel("success rate (validation tasks)")
     curves_ax.set_ylim(-0.02, 1.02)
@@ -462,21 +492,27 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
             success_ax.scatter([paper], [yi], marker="x", color="black", s=30, zorder=3)
     success_ax.set_yticks(y, result.rows, fontsize=8)
     for tick, row in zip(success_ax.get_yticklabels(), result.rows, strict=True):
-        tick.set_color(colours[row])
+        tick.set_color(_darken(colours[row]))
     success_ax.set_xlim(-0.02, 1.12)
     success_ax.set_ylim(-0.6, n - 0.4)  # runs' dots stay beside their row, even for one row
     success_ax.set_xlabel("test success rate")
     success_ax.set_title("(a) test success: IQM (diamond, 95% CI),\nruns (dots), paper (x)")
     success_ax.grid(alpha=0.3, axis="x")
-    # (c) performance profile: fraction of runs x conditions above each success threshold.
-    for row in result.rows:
+    # (c) performance profile: fraction of runs x conditions above each success threshold. A
+    # single run's profile is one step at its score, the dot of (a) again: where some rows have
+    # several runs, only theirs are drawn, so that the panel stays readable.
+    profiled = [r for r in result.rows if result.stats[r].num_runs > 1] or result.rows
+    for row in profiled:
         profile, colour = result.profiles[row], colours[row]
         profile_ax.plot(profile.taus, profile.fraction, color=colour, lw=1.6)
         if result.stats[row].num_runs > 1:
             profile_ax.fill_between(
                 profile.taus, profile.low, profile.high, color=colour, alpha=0.15, lw=0
             )
-    profile_ax.set_title("(c) performance profile\n(95% band)")
+    profile_ax.set_title(
+        "(c) performance profile (95% band)"
+        + ("\nrows with several runs" if len(profiled) < len(result.rows) else "")
+    )
     profile_ax.set_xlabel("test success threshold tau")
     profile_ax.set_ylabel("fraction of runs with success > tau")
     profile_ax.set_ylim(-0.02, 1.02)

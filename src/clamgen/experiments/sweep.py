@@ -559,9 +559,11 @@ def run_record(run: Run, status: str, error: str | None = None) -> dict[str, Any
 
 
 def _train_env(run_dir: Path) -> str | None:
-    """The env id the run trains (and validates) on, from its `config.json`."""
+    """The env id the run trains (and validates) on, from its `config.json` (a distillation's
+    under its student's settings)."""
     with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
-        return json.loads((Path(run_dir) / "config.json").read_text())["env"]["env_id"]
+        config = json.loads((Path(run_dir) / "config.json").read_text())
+        return config.get("student", config)["env"]["env_id"]
     return None
 
 
