@@ -313,3 +313,29 @@ def test_a_finished_run_is_polished_with_a_decaying_learning_rate_and_keeps_the_
         Distiller(
             distill_config(tmp_path, base_policy, teacher, **{**polish, "iterations": 2})
         ).run(False)
+
+
+def test_a_student_with_candidate_actions_trains_saves_and_acts(tmp_path, base_policy, teacher):
+    student = privileged_config(tmp_path / "student", base_policy)
+    student = dataclasses.replace(
+        student, agent=dataclasses.replace(student.agent, actor_components=3)
+    )
+    settings = DistillSettings(
+        teacher=teacher,
+        iterations=1,
+        episodes_per_iteration=3,
+        updates_per_iteration=20,
+        num_eval_episodes=2,
+    )
+    distiller = Distiller(DistillConfig(student=student, distill=settings))
+    distiller.run(show_progress=False)
+    obs, labels = distiller.data.batch(np.arange(8))
+    loss, _ = distiller.student.imitation_loss(obs, torch.as_tensor(labels))
+    assert torch.isfinite(loss)
+    # The policy file rebuilds the three candidates and acts with the chosen one, as trained.
+    policy, _, _ = load_policy(str(student.run_dir / POLICY_NAME))
+    single = {k: v[0] for k, v in obs.items()}
+    assert np.allclose(policy.act(single), distiller.student.act(single, deterministic=True))
+    # RL trains one Gaussian: candidate actions are refused there.
+    with pytest.raises(ValueError, match="actor_components > 1 is for distilled students"):
+        Stage2Trainer(student)

@@ -50,6 +50,12 @@ def main() -> None:
         help="the student's actor and critic hidden layers (default: the run's)",
     )
     parser.add_argument(
+        "--actor-components",
+        type=int,
+        default=None,
+        help="the student's mixture components (agent.actor_components; default: the run's)",
+    )
+    parser.add_argument(
         "--set",
         nargs="*",
         default=[],
@@ -60,8 +66,13 @@ def main() -> None:
     saved = json.loads((args.run_dir / "config.json").read_text())
     student = config_from_json(json.dumps(saved["student"]), Stage2Config)
     student = dataclasses.replace(student, run_dir=args.out)
+    agent_changes = {}
     if args.hidden_sizes:
-        agent = dataclasses.replace(student.agent, hidden_sizes=tuple(args.hidden_sizes))
+        agent_changes["hidden_sizes"] = tuple(args.hidden_sizes)
+    if args.actor_components:
+        agent_changes["actor_components"] = args.actor_components
+    if agent_changes:
+        agent = dataclasses.replace(student.agent, **agent_changes)
         student = dataclasses.replace(student, agent=agent)
         saved["student"] = json.loads(config_to_json(student))
     changes = {}
@@ -121,6 +132,7 @@ def main() -> None:
         "changes": changes,
         "updates": args.updates,
         "hidden_sizes": list(student.agent.hidden_sizes),
+        "actor_components": student.agent.actor_components,
         "loss": loss,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}

@@ -77,6 +77,77 @@ class Actor(nn.Module):
         return torch.tanh(self(features)[0])
 
 
+class MixtureActor(nn.Module):
+    """``components`` candidate actions and a choice among them, for behaviour cloning of a
+    teacher whose actions are multimodal (beyond the paper). Where an obstacle can be passed on
+    either side, a teacher labels nearby states with either side; one mean regressed on both
+    learns their average, which runs into the obstacle. Here each label trains only the
+    candidate nearest to it (multiple-choice learning, "winner takes all": Guzman-Rivera et al.
+    2012, Lee et al. 2016), so the candidates settle on different sides, and a choice head
+    learns which candidate wins where. A mixture's likelihood would do the same in principle,
+    but one wide component covering both sides is a local optimum it often stops in.
+
+    It acts as :class:`Actor` does, with the chosen candidate: `forward` gives its mean and log
+    std (each candidate has one, for sampling), so acting needs no other change."""
+
+    def __init__(
+        self,
+        input_dim: int,
+        action_dim: int,
+        hidden_sizes: tuple[int, ...],
+        log_std_bounds: tuple[float, float],
+        components: int,
+        others_weight: float = 0.05,
+    ) -> None:
+        super().__init__()
+        self.action_dim = action_dim
+        self.num_components = components
+        self.log_std_bounds = log_std_bounds
+        self.others_weight = others_weight
+        """Share of the loss spread over the losing candidates (relaxed winner-takes-all), so
+        that no candidate is left where no label ever reaches it."""
+        # Outputs: K means (K * A), K raw log stds (K * A), K choice logits (K).
+        self.trunk = mlp(input_dim, hidden_sizes, components * (2 * action_dim + 1))
+
+    def components(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Means and log stds (B, K, A) and choice logits (B, K) from features (B, D)."""
+        k, a = self.num_components, self.action_dim
+        out = self.trunk(features)
+        mean = out[..., : k * a].unflatten(-1, (k, a))
+        raw_log_std = out[..., k * a : 2 * k * a].unflatten(-1, (k, a))
+        low, high = self.log_std_bounds
+        log_std = low + 0.5 * (high - low) * (torch.tanh(raw_log_std) + 1.0)
+        return mean, log_std, out[..., 2 * k * a :]
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pre-squash mean and log std (B, A) of the chosen candidate."""
+        mean, log_std, logits = self.components(features)
+        rows, best = torch.arange(len(logits), device=logits.device), logits.argmax(-1)
+        return mean[rows, best], log_std[rows, best]
+
+    def sample(
+        self, features: torch.Tensor, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A sample around the chosen candidate (B, A) and its log-probability (B,)."""
+        return tanh_gaussian_sample(*self(features), generator)
+
+    def mode(self, features: torch.Tensor) -> torch.Tensor:
+        """Deterministic action: tanh of the chosen candidate's mean, (B, A)."""
+        return torch.tanh(self(features)[0])
+
+    def imitation_loss(self, features: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """Squared error (mean over action dimensions) of the candidate nearest to each
+        pre-squash target (B, A), `others_weight` of it spread over the other candidates, plus
+        the cross-entropy of the choice head against that nearest candidate."""
+        mean, _, logits = self.components(features)
+        errors = (target[:, None, :] - mean).pow(2).mean(-1)  # (B, K)
+        winner = errors.detach().argmin(-1)
+        nearest = errors.gather(1, winner[:, None]).squeeze(1)
+        others = (errors.sum(-1) - nearest) / max(self.num_components - 1, 1)
+        regression = (1 - self.others_weight) * nearest + self.others_weight * others
+        return regression.mean() + F.cross_entropy(logits, winner)
+
+
 class EnsembleLinear(nn.Module):
     """``num_members`` independent linear layers applied in one batched matmul.
 

@@ -60,6 +60,7 @@ from clamgen.agents.geometry import NUM_ARM_KEYPOINTS, arm_keypoints
 from clamgen.agents.networks import (
     Actor,
     EnsembleCritic,
+    MixtureActor,
     RunningNormalizer,
     mlp,
     tanh_gaussian_sample,
@@ -146,6 +147,12 @@ class ResidualConfig:
     """Factor on rewards (as stage 1: -0.01 per step becomes -1)."""
     log_std_bounds: tuple[float, float] = (-5.0, 2.0)
     """Range of the residual's pre-squash log standard deviation."""
+    actor_components: int = 1
+    """Beyond the paper, for distilled students only (`clamgen distill`): > 1 makes the
+    residual actor propose that many candidate actions and choose one (`MixtureActor`): each
+    label trains the candidate nearest to it, so that a teacher's multimodal labels (an
+    obstacle passed on either side) are not averaged. 1: one Gaussian (the paper; RL trains
+    only this)."""
     target_encoder: Literal["target", "online"] = "target"
     """Visual features the target critic reads for s': "target", its own Polyak-averaged copy
     of the encoder (CURL, SAC-AE, the paper); "online", the online encoder's no-grad features,
@@ -171,6 +178,9 @@ class ResidualConfig:
                 raise ValueError(f"agent.{name} must be an integer >= {low}, got {value!r}")
         if self.obs_source not in ("images", "obstacles"):
             raise ValueError(f"obs_source must be 'images' or 'obstacles', got {self.obs_source!r}")
+        value = self.actor_components
+        if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"agent.actor_components must be an integer >= 1, got {value!r}")
         if self.arm_keypoints and self.obs_source != "obstacles":
             raise ValueError("agent.arm_keypoints needs agent.obs_source='obstacles'")
         if not 0.0 <= self.view_dropout < 1.0:  # NaN fails too
@@ -283,10 +293,16 @@ class ResidualActor(nn.Module):
         hidden_sizes: tuple[int, ...],
         log_std_bounds,
         zero_mean: bool,
+        components: int = 1,
     ) -> None:
         super().__init__()
         self.low_dim = LowDimEncoder(low_dim, low_dim_size)
-        self.policy = Actor(feature_dim + low_dim_size, action_dim, hidden_sizes, log_std_bounds)
+        inputs = feature_dim + low_dim_size
+        if components > 1:
+            # Randomly initialised means: components that start equal would stay equal.
+            self.policy = MixtureActor(inputs, action_dim, hidden_sizes, log_std_bounds, components)
+            return
+        self.policy = Actor(inputs, action_dim, hidden_sizes, log_std_bounds)
         if zero_mean:
             last = self.policy.trunk[-1]
             with torch.no_grad():
@@ -294,7 +310,10 @@ class ResidualActor(nn.Module):
                 last.bias[:action_dim].zero_()
 
     def forward(self, visual: torch.Tensor, low_dim_in: torch.Tensor):
-        return self.policy(torch.cat([visual, self.low_dim(low_dim_in)], dim=-1))
+        return self.policy(self.features(visual, low_dim_in))
+
+    def features(self, visual: torch.Tensor, low_dim_in: torch.Tensor) -> torch.Tensor:
+        return torch.cat([visual, self.low_dim(low_dim_in)], dim=-1)
 
 
 @dataclass
@@ -410,6 +429,7 @@ class ResidualAgent:
                 config.hidden_sizes,
                 config.log_std_bounds,
                 config.residual,
+                config.actor_components,
             )
             dims = AuxDims(
                 feature_dim=feature_dim,
@@ -699,12 +719,19 @@ class ResidualAgent:
         self, obs: Mapping[str, Any], target_mean: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, visual encoding): the mean squared error between this policy's pre-squash
-        mean and `target_mean` (B, A), on random crops with view dropout as in training, and
-        the encoding it was computed from; gradients reach the encoder and the actor
-        (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
+        mean and `target_mean` (B, A) (with `actor_components` > 1: the candidates'
+        winner-takes-all loss, `MixtureActor`), on random crops with view dropout as in
+        training, and the encoding it was computed from; gradients reach the encoder and the
+        actor (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
         visual_in = self._visual(obs, train=True)
         visual = self.critic.encoder(visual_in, self._view_mask(len(target_mean)))
-        mean, _ = self._pre_squash(visual, self._actor_view(self._state(obs)))
+        low_dim = self._actor_view(self._state(obs))
+        if isinstance(self.actor.policy, MixtureActor):
+            # The candidates regress the label's residual over the base.
+            features = self.actor.features(visual, low_dim)
+            target = target_mean - self._base_mean(low_dim)
+            return self.actor.policy.imitation_loss(features, target), visual
+        mean, _ = self._pre_squash(visual, low_dim)
         return torch.mean((mean - target_mean) ** 2), visual
 
     # ------------------------------------------------------------------ update

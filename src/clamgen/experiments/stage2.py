@@ -168,6 +168,11 @@ class Stage2Trainer(Trainer):
     """The shared training loop with the residual stage plugged in (nothing overridden)."""
 
     def __init__(self, config: Stage2Config) -> None:
+        if config.agent.actor_components > 1:
+            raise ValueError(
+                "agent.actor_components > 1 is for distilled students (clamgen distill); "
+                "RL trains a single Gaussian"
+            )
         super().__init__(config, residual_stage(config))
 
 
