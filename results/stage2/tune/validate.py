@@ -58,6 +58,11 @@ def main() -> None:
         help="clearance (m) the lookahead's plans keep where they can (0: true contact)",
     )
     parser.add_argument(
+        "--lookahead-fixed-offsets",
+        action="store_true",
+        help="the lookahead's searches draw from one fixed library of perturbed plans",
+    )
+    parser.add_argument(
         "--clearance",
         type=float,
         default=0.0,
@@ -82,12 +87,14 @@ def main() -> None:
                 horizon=args.lookahead_horizon,
                 noise=args.lookahead_noise,
                 margin_m=args.lookahead_margin,
+                fixed_offsets=args.lookahead_fixed_offsets,
             )
             policy = LookaheadPolicy(teacher)
             label += (
                 f" (lookahead {args.lookahead} x {args.lookahead_horizon}, "
                 f"noise {args.lookahead_noise}"
-                + (f", margin {args.lookahead_margin} m)" if args.lookahead_margin else ")")
+                + (f", margin {args.lookahead_margin} m" if args.lookahead_margin else "")
+                + (", fixed library)" if args.lookahead_fixed_offsets else ")")
             )
         if args.clearance:
             label += f" [scored with {args.clearance} m clearance]"
