@@ -813,8 +813,11 @@ def build_report(config: ReportConfig) -> Path:
             f"{len(results)} trained or baseline policies from {len(sources)} result files"
             f"{' and the sweep summaries ' + ', '.join(sweeps) if sweeps else ''}. A row with "
             "one run has no interval: its spread over training seeds is not measured. Curves "
-            "are validation success (validation seeds, logged during training); the tables "
-            "and profiles use the test seeds.",
+            "are validation success (validation seeds, logged during training; dashed for "
+            "runs trained and validated on the mix of blocked and standard tasks, drawn in "
+            "both obstacle figures); the tables and profiles use the test seeds. Where some "
+            "rows of a figure have several runs, its performance profiles show those rows only "
+            "(a single run's profile is one step at its score).",
             "",
         ]
         colours = row_colours(r for f in families.values() for r in f.rows)
