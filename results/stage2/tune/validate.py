@@ -23,6 +23,7 @@ from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
 from clamgen.experiments.policies import load_policy, policy_label
+from clamgen.experiments.shield import load_shielded_student
 from clamgen.experiments.tables import wilson_interval
 
 VALIDATION_OFFSET = 10_000
@@ -69,9 +70,35 @@ def main() -> None:
         help="score with envs that count approaches within this many metres of an obstacle or "
         "the table as collisions (0: true contact, as the tables)",
     )
+    parser.add_argument(
+        "--shield",
+        type=float,
+        default=None,
+        metavar="MARGIN_M",
+        help="the policies are distillation run directories: act through the collision shield "
+        "on the obstacles the student's pose head reads (clamgen.experiments.shield), keeping "
+        "this clearance",
+    )
+    parser.add_argument(
+        "--shield-true-poses",
+        action="store_true",
+        help="the shield reads the true obstacle poses instead (an oracle)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:
+        if args.shield is not None:
+            policy, env_kwargs = load_shielded_student(
+                name, margin_m=args.shield, true_poses=args.shield_true_poses
+            )
+            source = str(name)
+            label = f"{Path(name).name} (shield {args.shield} m"
+            label += ", true poses)" if args.shield_true_poses else ")"
+            if args.clearance:
+                env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}
+            score(policy, label, source, env_kwargs, args.num_tasks, args.families)
+            print(f"  shielded steps: {policy.num_shielded} of {policy.num_steps}")
+            continue
         policy, source, env_kwargs = load_policy(name)
         if args.stochastic:
             policy.deterministic = False

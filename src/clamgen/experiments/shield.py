@@ -1,0 +1,195 @@
+"""A collision shield for a distilled vision student (beyond the paper).
+
+A vision student distilled with the pose loss (`clamgen.experiments.distill`, `pose_weight`)
+has a linear head that reads the obstacles' poses (kind, centre, half sizes) from its visual
+encoding, to about 3 cm. The shield places those predicted obstacles, enlarged by
+`margin_m`, in a scene of its own and checks the student's next joint step along its path, as
+the env does. A step that keeps its clearance (stays `margin_m` away from every predicted
+obstacle, or does not come closer when it already is nearer) is taken unchanged. Otherwise
+the shield takes the nearest of a fixed set of alternatives (the action shortened, and fixed
+perturbations of it before the tanh) that keeps its clearance, or, when none does, the one
+that keeps the most. The table's pose is known exactly and is checked without margin.
+
+Nothing privileged is read: the obstacles come from the student's own images.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+
+from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD, MAX_JOINT_DELTA_RAD
+from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.distill import POSE_LENGTHS, POSE_SIZE, STATE_NAME
+from clamgen.robot import ur5
+from clamgen.sim import constants as C
+from clamgen.sim.scene import Obstacles, Scene
+
+MARGIN_M = 0.03
+"""Clearance the shield keeps from predicted obstacles: about the pose head's error."""
+NUM_PERTURBATIONS = 16
+"""Fixed perturbations of the action (before the tanh) among the alternatives."""
+PERTURBATION_STD = 1.0
+"""Their standard deviation, in pre-tanh units (an action saturates near 3)."""
+SHORTENED = (0.5, 0.25, 0.0)
+"""Fractions of the action among the alternatives (0: stay)."""
+MIN_HALF_SIZE_M = 0.005
+"""Predicted half sizes are clipped to at least this."""
+PRE_SQUASH_CLIP = 3.0
+
+
+def predicted_obstacles(poses: np.ndarray, length_scale_m: float) -> Obstacles:
+    """Obstacles from the pose head's (N, 8) output: kind by the larger of the one-hot pair,
+    lengths rescaled to metres, half sizes at least `MIN_HALF_SIZE_M`."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, POSE_SIZE)
+    lengths = poses[:, POSE_LENGTHS] * length_scale_m
+    kinds = np.where(poses[:, 0] >= poses[:, 1], C.OBSTACLE_BOX, C.OBSTACLE_CYLINDER)
+    half = np.maximum(lengths[:, 3:], MIN_HALF_SIZE_M)
+    # A cylinder's half sizes are (radius, radius, half height).
+    cylinder = kinds == C.OBSTACLE_CYLINDER
+    half[cylinder, 1] = half[cylinder, 0]
+    return Obstacles(kinds.astype(np.int64), lengths[:, :3].copy(), half)
+
+
+class ClearanceChecker:
+    """A scene of its own with the obstacles enlarged by `margin_m` on every side (the table as
+    it is); the clearance of a joint step along its path. (Enlarged shapes rather than MuJoCo's
+    contact margin: box-capsule contacts within a margin are not reported.)"""
+
+    def __init__(self, margin_m: float = MARGIN_M) -> None:
+        if not 0 <= margin_m < float("inf"):
+            raise ValueError(f"margin_m must be a number >= 0, got {margin_m}")
+        self.margin_m = margin_m
+        self.scene = Scene(0.0)
+        self._obstacle_geoms = self.scene.obstacle_geoms.ravel()
+
+    def set_obstacles(self, obstacles: Obstacles) -> None:
+        enlarged = Obstacles(
+            obstacles.kinds, obstacles.positions_m, obstacles.half_sizes_m + self.margin_m
+        )
+        self.scene.set_obstacles(enlarged)
+
+    def clearance(self, joints: np.ndarray) -> float:
+        """Distance (m) of the arm at `joints` to the table or an obstacle (negative: touching),
+        capped at `margin_m`: beyond the margin the enlarged obstacles are not touched. Within
+        it, the depth into an enlarged obstacle approximates the distance to the obstacle
+        (at a box's edges and corners the enlarged box is larger than the margin's reach, so
+        the shield errs on the side of caution)."""
+        scene = self.scene
+        scene.data.qpos[:] = joints
+        mujoco.mj_kinematics(scene.model, scene.data)
+        mujoco.mj_collision(scene.model, scene.data)
+        n = scene.data.ncon
+        if n == 0:
+            return self.margin_m
+        contact = scene.data.contact
+        obstacle = np.isin(contact.geom1[:n], self._obstacle_geoms) | np.isin(
+            contact.geom2[:n], self._obstacle_geoms
+        )
+        distances = contact.dist[:n] + np.where(obstacle, self.margin_m, 0.0)
+        return float(min(self.margin_m, distances.min()))
+
+    def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
+        """Smallest clearance along the env's straight joint step for `action`."""
+        target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, *ur5.JOINT_LIMITS.T)
+        delta = target - joints
+        checks = max(1, int(np.ceil(np.max(np.abs(delta)) / COLLISION_CHECK_RESOLUTION_RAD)))
+        return min(self.clearance(joints + delta * (k / checks)) for k in range(1, checks + 1))
+
+
+class ShieldedStudent:
+    """A distilled vision student acting through the collision shield (a `Policy`).
+
+    `agent`: the student (`ResidualAgent` with images); `pose_head`: its trained pose head
+    (a `torch.nn.Linear` from the visual encoding to N x 8). Counts `num_shielded` steps.
+    """
+
+    def __init__(
+        self,
+        agent,
+        pose_head: torch.nn.Module,
+        length_scale_m: float = 1.0,
+        margin_m: float = MARGIN_M,
+        seed: int = 0,
+        true_poses: bool = False,
+    ) -> None:
+        self.agent = agent
+        self.true_poses = true_poses
+        self.pose_head = pose_head.eval()
+        self.length_scale_m = length_scale_m
+        self.checker = ClearanceChecker(margin_m)
+        rng = np.random.default_rng(seed)
+        self.perturbations = PERTURBATION_STD * rng.standard_normal(
+            (NUM_PERTURBATIONS, ur5.NUM_JOINTS)
+        )
+        self.num_steps = 0
+        self.num_shielded = 0
+
+    def reset(self, env: Any | None = None) -> None:
+        pass
+
+    @torch.inference_mode()
+    def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        agent = self.agent
+        batch = {k: np.asarray(v)[None] for k, v in obs.items() if k != "obstacles"}
+        visual = agent.critic.encoder(agent._visual(batch, train=False))
+        pre = agent._pre_squash(visual, agent._actor_view(agent._state(batch)))[0][0].numpy()
+        poses = self.pose_head(visual).view(-1, POSE_SIZE).numpy()
+        action = np.tanh(pre)
+        self.num_steps += 1
+        joints = np.asarray(obs["observation"], dtype=np.float64)[: ur5.NUM_JOINTS]
+        if self.true_poses:  # an oracle, to measure the shield apart from the pose head
+            self.checker.set_obstacles(predicted_obstacles(obs["obstacles"], 1.0))
+        else:
+            self.checker.set_obstacles(predicted_obstacles(poses, self.length_scale_m))
+        now = self.checker.clearance(joints)
+        # Staying keeps `now` exactly, so some alternative always passes: with true poses the
+        # shield never lets the arm touch an obstacle.
+        keep = min(now, self.checker.margin_m)
+        if self.checker.step_clearance(joints, action) >= keep:
+            return action.astype(np.float32)
+        self.num_shielded += 1
+        pre = np.clip(pre, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
+        alternatives = [f * action for f in SHORTENED]
+        alternatives += list(np.tanh(pre + self.perturbations))
+        clearances = np.array([self.checker.step_clearance(joints, a) for a in alternatives])
+        distances = np.array([np.linalg.norm(a - action) for a in alternatives])
+        ok = clearances >= keep
+        if ok.any():
+            best = int(np.flatnonzero(ok)[np.argmin(distances[ok])])
+        else:
+            best = int(np.argmax(clearances))
+        return np.asarray(alternatives[best], dtype=np.float32)
+
+
+def load_shielded_student(
+    run_dir: str | Path, margin_m: float = MARGIN_M, seed: int = 0, true_poses: bool = False
+) -> tuple[ShieldedStudent, dict]:
+    """The student of a distillation (or `offline.py`) run directory with its pose head, from
+    the run's `student.pt` (the last iteration's student: the pose head was trained with it),
+    and the env options it observes with."""
+    import json
+
+    from clamgen.experiments.stage2 import load_residual_agent
+
+    run_dir = Path(run_dir)
+    state = ckpt.load_torch(run_dir / STATE_NAME, kind=None)
+    agent, config = load_residual_agent(run_dir / "policy.pt")
+    agent.load_state_dict(state["student"])
+    head = state["pose_head"]
+    pose_head = torch.nn.Linear(head["weight"].shape[1], head["weight"].shape[0])
+    pose_head.load_state_dict(head)
+    settings = json.loads((run_dir / "config.json").read_text())["distill"]
+    kwargs = config.env.make_kwargs()
+    kwargs.pop("target_speed")
+    if true_poses:
+        kwargs["include_obstacle_state"] = True
+    policy = ShieldedStudent(
+        agent, pose_head, settings.get("pose_length_scale_m", 1.0), margin_m, seed, true_poses
+    )
+    return policy, kwargs
