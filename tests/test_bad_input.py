@@ -235,6 +235,17 @@ def test_eval_lookahead_needs_a_privileged_residual(workdir):
     assert "--lookahead-margin-m must be a number >= 0, got -0.01" in message
 
 
+def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
+    message = refused(
+        workdir, "eval", "--table", "2", "--policy", "base", "--depth-shield-m", "0.01"
+    )
+    assert "--depth-shield-m needs a vision residual" in message
+    message = refused(
+        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-shield-m", "-1"
+    )
+    assert "bad --depth-shield-m: margin_m must be a number >= 0, got -1.0" in message
+
+
 def test_eval_rrt_without_ompl_says_what_to_install(workdir, monkeypatch):
     for module in ("ompl", "ompl.base", "ompl.geometric", "ompl.util"):
         monkeypatch.setitem(sys.modules, module, None)  # `import` then raises ImportError

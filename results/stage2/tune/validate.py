@@ -84,6 +84,19 @@ def main() -> None:
         action="store_true",
         help="the shield reads the true obstacle poses instead (an oracle)",
     )
+    parser.add_argument(
+        "--depth-shield",
+        type=float,
+        default=None,
+        metavar="MARGIN_M",
+        help="act through the collision shield on the policy's own depth images "
+        "(clamgen.experiments.depth_shield), keeping this clearance",
+    )
+    parser.add_argument(
+        "--no-slide",
+        action="store_true",
+        help="the depth shield's alternatives leave out the slid action",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     for name in args.policies:
@@ -123,10 +136,25 @@ def main() -> None:
                 + (f", margin {args.lookahead_margin} m" if args.lookahead_margin else "")
                 + (", fixed library)" if args.lookahead_fixed_offsets else ")")
             )
+        if args.depth_shield is not None:
+            from clamgen.experiments.depth_shield import DepthShield
+
+            policy = DepthShield(
+                policy,
+                env_kwargs["num_views"],
+                env_kwargs["image_size"],
+                args.depth_shield,
+                sliding=not args.no_slide,
+            )
+            label += f" (depth shield {args.depth_shield} m" + (
+                ")" if args.no_slide else ", slide)"
+            )
         if args.clearance:
             label += f" [scored with {args.clearance} m clearance]"
             env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}
         score(policy, label, source, env_kwargs, args.num_tasks, args.families)
+        if args.depth_shield is not None:
+            print(f"  shielded steps: {policy.num_shielded} of {policy.num_steps}")
 
 
 def score(policy, label, source, env_kwargs, num_tasks, families=("blocked", "obstacles")):

@@ -41,6 +41,11 @@ SHORTENED = (0.5, 0.25, 0.0)
 MIN_HALF_SIZE_M = 0.005
 """Predicted half sizes are clipped to at least this."""
 PRE_SQUASH_CLIP = 3.0
+SLIDE_ITERATIONS = 3
+SLIDE_EPS_RAD = 1e-3
+"""Finite-difference step of the clearance's gradient."""
+SLIDE_EXTRA_M = 0.002
+"""A slid step aims this far past the clearance it must keep (the gradient is local)."""
 
 
 def predicted_obstacles(poses: np.ndarray, length_scale_m: float) -> Obstacles:
@@ -95,11 +100,78 @@ class ClearanceChecker:
         return float(min(self.margin_m, distances.min()))
 
     def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
-        """Smallest clearance along the env's straight joint step for `action`."""
-        target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, *ur5.JOINT_LIMITS.T)
-        delta = target - joints
-        checks = max(1, int(np.ceil(np.max(np.abs(delta)) / COLLISION_CHECK_RESOLUTION_RAD)))
-        return min(self.clearance(joints + delta * (k / checks)) for k in range(1, checks + 1))
+        return step_clearance(self, joints, action)
+
+
+def step_clearance(checker, joints: np.ndarray, action: np.ndarray) -> float:
+    """Smallest `checker.clearance` along the env's straight joint step for `action`."""
+    target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, *ur5.JOINT_LIMITS.T)
+    delta = target - joints
+    checks = max(1, int(np.ceil(np.max(np.abs(delta)) / COLLISION_CHECK_RESOLUTION_RAD)))
+    return min(checker.clearance(joints + delta * (k / checks)) for k in range(1, checks + 1))
+
+
+def perturbations(seed: int = 0) -> np.ndarray:
+    """The fixed perturbations (before the tanh) among a shield's alternatives."""
+    rng = np.random.default_rng(seed)
+    return PERTURBATION_STD * rng.standard_normal((NUM_PERTURBATIONS, ur5.NUM_JOINTS))
+
+
+def slide(checker, joints: np.ndarray, action: np.ndarray, keep: float) -> np.ndarray:
+    """`action` with its motion into the obstacles taken out: the least change of the step's
+    end that brings its clearance back to `keep`, on the clearance's gradient there (finite
+    differences), repeated `SLIDE_ITERATIONS` times. The arm then slides along an obstacle
+    instead of stopping at it."""
+    low, high = ur5.JOINT_LIMITS.T
+    target = np.clip(joints + np.asarray(action, np.float64) * MAX_JOINT_DELTA_RAD, low, high)
+    for _ in range(SLIDE_ITERATIONS):
+        now = checker.clearance(target)
+        if now >= keep:
+            break
+        eye = np.eye(len(target)) * SLIDE_EPS_RAD
+        gradient = np.array([(checker.clearance(target + e) - now) / SLIDE_EPS_RAD for e in eye])
+        norm2 = float(gradient @ gradient)
+        if norm2 < 1e-12:
+            break
+        target = np.clip(target + (keep - now + SLIDE_EXTRA_M) * gradient / norm2, low, high)
+    return np.clip((target - joints) / MAX_JOINT_DELTA_RAD, -1.0, 1.0)
+
+
+def choose_action(
+    checker,
+    joints: np.ndarray,
+    action: np.ndarray,
+    pre: np.ndarray,
+    offsets: np.ndarray,
+    sliding: bool = False,
+) -> tuple[np.ndarray, bool]:
+    """The shield's choice for `action` (`pre`: before the tanh) at `joints`, and whether it
+    replaced it. `checker` has `margin_m` and `clearance(joints)` (capped at the margin).
+
+    A step that keeps its clearance (stays `margin_m` away, or does not come closer when it
+    already is nearer) is taken unchanged; otherwise the nearest alternative (the action
+    shortened, `tanh(pre + offsets)`) that keeps it, or, when none does, the one that keeps
+    the most. Staying keeps the clearance exactly, so some alternative always passes. With
+    `sliding`, the action with its motion into the obstacles taken out (`slide`, the least
+    change that keeps the clearance) is tried first."""
+    keep = min(checker.clearance(joints), checker.margin_m)
+    if step_clearance(checker, joints, action) >= keep:
+        return np.asarray(action, dtype=np.float32), False
+    if sliding:
+        slid = slide(checker, joints, action, keep)
+        if step_clearance(checker, joints, slid) >= keep:
+            return slid.astype(np.float32), True
+    pre = np.clip(pre, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
+    alternatives = [f * action for f in SHORTENED]
+    alternatives += list(np.tanh(pre + offsets))
+    clearances = np.array([step_clearance(checker, joints, a) for a in alternatives])
+    distances = np.array([np.linalg.norm(a - action) for a in alternatives])
+    ok = clearances >= keep
+    if ok.any():
+        best = int(np.flatnonzero(ok)[np.argmin(distances[ok])])
+    else:
+        best = int(np.argmax(clearances))
+    return np.asarray(alternatives[best], dtype=np.float32), True
 
 
 class ShieldedStudent:
@@ -123,10 +195,7 @@ class ShieldedStudent:
         self.pose_head = pose_head.eval()
         self.length_scale_m = length_scale_m
         self.checker = ClearanceChecker(margin_m)
-        rng = np.random.default_rng(seed)
-        self.perturbations = PERTURBATION_STD * rng.standard_normal(
-            (NUM_PERTURBATIONS, ur5.NUM_JOINTS)
-        )
+        self.perturbations = perturbations(seed)
         self.num_steps = 0
         self.num_shielded = 0
 
@@ -147,24 +216,10 @@ class ShieldedStudent:
             self.checker.set_obstacles(predicted_obstacles(obs["obstacles"], 1.0))
         else:
             self.checker.set_obstacles(predicted_obstacles(poses, self.length_scale_m))
-        now = self.checker.clearance(joints)
-        # Staying keeps `now` exactly, so some alternative always passes: with true poses the
-        # shield never lets the arm touch an obstacle.
-        keep = min(now, self.checker.margin_m)
-        if self.checker.step_clearance(joints, action) >= keep:
-            return action.astype(np.float32)
-        self.num_shielded += 1
-        pre = np.clip(pre, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
-        alternatives = [f * action for f in SHORTENED]
-        alternatives += list(np.tanh(pre + self.perturbations))
-        clearances = np.array([self.checker.step_clearance(joints, a) for a in alternatives])
-        distances = np.array([np.linalg.norm(a - action) for a in alternatives])
-        ok = clearances >= keep
-        if ok.any():
-            best = int(np.flatnonzero(ok)[np.argmin(distances[ok])])
-        else:
-            best = int(np.argmax(clearances))
-        return np.asarray(alternatives[best], dtype=np.float32)
+        # With true poses the shield never lets the arm touch an obstacle.
+        chosen, shielded = choose_action(self.checker, joints, action, pre, self.perturbations)
+        self.num_shielded += int(shielded)
+        return chosen
 
 
 def load_shielded_student(

@@ -1,0 +1,273 @@
+"""A collision shield on the policy's own depth images (beyond the paper).
+
+The vision policies see RGBD views from fixed, calibrated cameras. Each step, the depth
+pixels are lifted to world points (`DepthOccupancy.update`); the points above the table that
+lie neither on the arm (at its known joint angles) nor on the target, nor on the pedestal,
+are obstacle surface, and are kept on a voxel grid for the rest of the episode (the
+obstacles stand still, so a surface once seen stays even when the arm later hides it). The
+shield then checks the policy's next joint step against those points, the arm's collision
+capsules and the table, and replaces a step that would come within `margin_m` of them by the
+nearest alternative that does not (`clamgen.experiments.shield.choose_action`).
+
+Nothing privileged is read: only the images, the joint angles and the goal of the
+observation, and the cameras' fixed poses and fields of view. No pose is learned or estimated,
+so this shield works for any vision policy, shipped ones included (`DepthShield`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from clamgen.robot import ur5
+from clamgen.sim import constants as C
+from clamgen.sim.render import camera_intrinsics, uint8_to_depth
+from clamgen.sim.scene import Scene
+
+VOXEL_M = 0.01
+"""Edge of the voxels the obstacle surface is kept on."""
+ABOVE_TABLE_M = 0.015
+"""Points less than this above the table top are table."""
+ARM_FILTER_M = 0.006
+"""Points within this of the arm's surface (at its current joints) are arm, not obstacle: the
+rendered arm is its collision capsules, and a depth pixel lies on the surface it sees to
+within half the uint8 depth step (4.3 mm). Wider, it hides the obstacle surface next to the
+gripper, where the shield needs it most."""
+TARGET_FILTER_M = 0.02
+"""Points within this of the target sphere's surface are target."""
+PEDESTAL_RADIUS_M = 0.09
+PEDESTAL_TOP_M = 0.01
+"""The pedestal (a 7.5 cm cylinder up to z = 0) is not an obstacle."""
+SUPPORT_RADIUS_M = 0.03
+"""A new obstacle point counts only with another obstacle point (new or kept) within this:
+a lone pixel is not a surface (the renderer leaves a rare stray pixel)."""
+FAR_CLIP_M = C.DEPTH_RANGE_M[1] - 0.05
+"""Depth at or beyond the stored range's far end is background."""
+MARGIN_M = 0.01
+"""Clearance the depth shield keeps: about a voxel (chosen on validation tasks)."""
+GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
+GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
+"""The voxel grid's bounds (the table's top and the workspace above it); points outside are
+not kept."""
+
+
+def _segment_distance(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """(P, S) distances of points (P, 3) to segments from `starts` to `ends` (S, 3), by
+    matrix products (the squared distance expanded; exact to far below a millimetre at arm
+    scale)."""
+    axis = ends - starts
+    length2 = np.maximum((axis * axis).sum(1), 1e-12)
+    along = points @ axis.T - (starts * axis).sum(1)  # (p - s) . a
+    t = np.clip(along / length2, 0.0, 1.0)
+    to_start2 = (
+        (points * points).sum(1)[:, None] - 2.0 * points @ starts.T + (starts * starts).sum(1)
+    )
+    squared = to_start2 - 2.0 * t * along + t * t * length2
+    return np.sqrt(np.maximum(squared, 0.0))
+
+
+class ArmCapsules:
+    """The arm's collision geoms as capsules (segments with radii) at given joint angles (the
+    gripper's two cylinders as capsules of the same radius, a little longer: conservative)."""
+
+    def __init__(self, scene: Scene | None = None) -> None:
+        self.scene = scene if scene is not None else Scene(0.0)
+        model = self.scene.model
+        shapes = (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
+        self.geoms = np.array(
+            [g for g in self.scene.robot_geoms if int(model.geom_type[g]) in shapes], dtype=int
+        )
+        self.radii = model.geom_size[self.geoms, 0].copy()
+        self.half_lengths = model.geom_size[self.geoms, 1].copy()
+        # Geoms that can touch the table (the shoulder column stands on the base and cannot).
+        self.touch_table = (model.geom_contype[self.geoms] & C.TABLE_BIT) != 0
+
+    def segments(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(starts, ends), each (G, 3), of the geoms' axes at `joints`."""
+        data = self.scene.data
+        data.qpos[:] = joints
+        mujoco.mj_kinematics(self.scene.model, data)
+        centres = data.geom_xpos[self.geoms]
+        axes = data.geom_xmat[self.geoms].reshape(-1, 3, 3)[:, :, 2]
+        offset = axes * self.half_lengths[:, None]
+        return centres - offset, centres + offset
+
+    def near(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray, reach: float):
+        """Indices of `points` in the box around the arm's segments widened by its largest
+        radius and `reach`: the only ones that can lie within `reach` of its surface."""
+        reach = self.radii.max() + reach
+        low = np.minimum(starts, ends).min(axis=0) - reach
+        high = np.maximum(starts, ends).max(axis=0) + reach
+        return np.flatnonzero(((points > low) & (points < high)).all(axis=1))
+
+    def clearance(self, joints: np.ndarray, points: np.ndarray, cap: float = np.inf) -> float:
+        """Distance (m) of the arm at `joints` to the nearest of `points` (P, 3) or to the table
+        (negative: touching), or `cap` when both are farther."""
+        starts, ends = self.segments(joints)
+        lowest = np.minimum(starts[:, 2], ends[:, 2]) - self.radii
+        table = min(cap, float((lowest[self.touch_table] - C.TABLE_TOP_Z_M).min()))
+        if np.isfinite(cap):
+            points = points[self.near(points, starts, ends, cap)]
+        if len(points) == 0:
+            return table
+        surface = _segment_distance(points, starts, ends) - self.radii[None]
+        return min(table, float(surface.min()))
+
+
+class DepthOccupancy:
+    """Obstacle surface points seen so far in an episode, from RGBD views of the fixed cameras.
+
+    `num_views`, `height`, `width`: the observation's views (the first `num_views` cameras of
+    `constants.CAMERAS`) and image size.
+    """
+
+    def __init__(self, num_views: int, height: int, width: int, arm: ArmCapsules | None = None):
+        self.arm = arm if arm is not None else ArmCapsules()
+        scene = self.arm.scene
+        mujoco.mj_kinematics(scene.model, scene.data)
+        rays = []
+        for camera in scene.camera_ids[:num_views]:
+            fx, fy, cx, cy = camera_intrinsics(scene.model, camera, height, width)
+            cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+            # Camera frame: x right, y up, looking along -z; depth is along the optical axis.
+            local = np.stack([(cols - cx) / fx, -(rows - cy) / fy, -np.ones_like(cols)], -1)
+            rotation = scene.data.cam_xmat[camera].reshape(3, 3)
+            rays.append(local @ rotation.T)
+        # Per pixel, flattened over views: the camera's position and the world offset per metre
+        # of depth.
+        self.rays = np.stack(rays).reshape(-1, 3).astype(np.float32)
+        origins = scene.data.cam_xpos[scene.camera_ids[:num_views]].astype(np.float32)
+        self.origins = np.repeat(origins, height * width, axis=0)
+        self.shape = (num_views, height, width)
+        self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
+        self._grid = np.zeros(int(np.prod(self._dims)), bool)
+        self._cells = np.empty(0, np.int64)
+        self.points = np.empty((0, 3))
+
+    def reset(self) -> None:
+        self._grid[self._cells] = False
+        self._cells = np.empty(0, np.int64)
+        self.points = np.empty((0, 3))
+
+    def lift(self, images: np.ndarray) -> np.ndarray:
+        """World points (N, 3) of the views' depth pixels that are not background and lie
+        above the table."""
+        images = np.asarray(images)
+        if images.shape[0] != self.shape[0] or images.shape[2:] != self.shape[1:]:
+            raise ValueError(
+                f"expected images of shape (V, 4, H, W) with (V, H, W) = {self.shape}, "
+                f"got {images.shape}"
+            )
+        depth = uint8_to_depth(images[:, 3]).reshape(-1)
+        height = self.origins[:, 2] + depth * self.rays[:, 2]
+        keep = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
+        return (self.origins[keep] + depth[keep, None] * self.rays[keep]).astype(np.float64)
+
+    def voxel_centres(self, cells: np.ndarray) -> np.ndarray:
+        return GRID_LOW_M + (np.stack(np.unravel_index(cells, self._dims), axis=1) + 0.5) * VOXEL_M
+
+    def new_obstacle_cells(
+        self, images: np.ndarray, joints: np.ndarray, goal: np.ndarray
+    ) -> np.ndarray:
+        """Voxels (flat indices) of obstacle surface in `images` not yet kept: lifted points
+        above the table, off the target, the pedestal and the arm at `joints`, with another
+        such point near."""
+        points = self.lift(images)
+        radial = np.linalg.norm(points[:, :2], axis=1)
+        points = points[(radial > PEDESTAL_RADIUS_M) | (points[:, 2] > PEDESTAL_TOP_M)]
+        target = np.linalg.norm(points - np.asarray(goal)[None], axis=1)
+        points = points[target > C.TARGET_RADIUS_M + TARGET_FILTER_M]
+        voxels = np.floor((points - GRID_LOW_M) / VOXEL_M).astype(np.int64)
+        inside = ((voxels >= 0) & (voxels < self._dims)).all(axis=1)
+        cells = np.ravel_multi_index(voxels[inside].T, self._dims)
+        new = ~self._grid[cells]
+        cells, points = cells[new], points[inside][new]
+        if len(cells):
+            starts, ends = self.arm.segments(joints)
+            near = self.arm.near(points, starts, ends, ARM_FILTER_M)
+            arm = _segment_distance(points[near], starts, ends) - self.arm.radii[None]
+            off_arm = np.ones(len(cells), bool)
+            off_arm[near[arm.min(axis=1) <= ARM_FILTER_M]] = False
+            cells, points = cells[off_arm], points[off_arm]
+        if len(cells):
+            others = np.concatenate([points, self.points])
+            close = np.linalg.norm(points[:, None] - others[None], axis=-1) < SUPPORT_RADIUS_M
+            cells = cells[close.sum(axis=1) >= 2]  # (itself and another)
+        return np.unique(cells)
+
+    def update(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Add the obstacle surface seen in `obs` to the episode's voxels; all voxel centres."""
+        joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+        cells = self.new_obstacle_cells(obs["images"], joints, obs["desired_goal"])
+        if len(cells):
+            self._grid[cells] = True
+            self._cells = np.concatenate([self._cells, cells])
+            self.points = np.concatenate([self.points, self.voxel_centres(cells)])
+        return self.points
+
+
+class DepthClearance:
+    """`clamgen.experiments.shield.choose_action`'s checker on the depth shield's points."""
+
+    def __init__(self, arm: ArmCapsules, margin_m: float) -> None:
+        self.arm = arm
+        self.margin_m = margin_m
+        self.points = np.empty((0, 3))
+
+    def clearance(self, joints: np.ndarray) -> float:
+        return self.arm.clearance(joints, self.points, cap=self.margin_m)
+
+
+class DepthShield:
+    """Any vision policy acting through the depth shield (a `Policy`).
+
+    `policy`: a `Policy` observing images (and joints and goal); `num_views`, `image_size`:
+    its observation's. Counts `num_shielded` of `num_steps`.
+    """
+
+    def __init__(
+        self,
+        policy,
+        num_views: int,
+        image_size: int,
+        margin_m: float = MARGIN_M,
+        seed: int = 0,
+        sliding: bool = True,
+    ) -> None:
+        from clamgen.experiments.shield import perturbations
+
+        if not 0 <= margin_m < float("inf"):
+            raise ValueError(f"margin_m must be a number >= 0, got {margin_m}")
+        self.policy = policy
+        arm = ArmCapsules()
+        self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm)
+        self.checker = DepthClearance(arm, margin_m)
+        self.perturbations = perturbations(seed)
+        self.sliding = sliding
+        self.num_steps = 0
+        self.num_shielded = 0
+
+    @property
+    def agent(self):
+        return getattr(self.policy, "agent", None)
+
+    def reset(self, env: Any | None = None) -> None:
+        self.occupancy.reset()
+        self.policy.reset(env)
+
+    def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        from clamgen.experiments.shield import choose_action
+
+        action = np.asarray(self.policy.act(obs), np.float64)
+        self.checker.points = self.occupancy.update(obs)
+        joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+        self.num_steps += 1
+        pre = np.arctanh(np.clip(action, -0.995, 0.995))
+        chosen, shielded = choose_action(
+            self.checker, joints, action, pre, self.perturbations, self.sliding
+        )
+        self.num_shielded += int(shielded)
+        return chosen

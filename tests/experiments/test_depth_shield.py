@@ -1,0 +1,97 @@
+"""The collision shield on a policy's own depth images: the lifted obstacle surface lies on the
+true obstacles, the arm's clearance to points, and obstacle-blind IK interpolation kept off
+the obstacles it would hit."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from clamgen.baselines import IKInterpolationPolicy
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import TEST_SEEDS
+from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield
+from clamgen.experiments.evaluate import evaluate
+from clamgen.sim import constants as C
+from clamgen.sim.scene import Obstacles
+
+VIEWS, SIZE = 3, 64
+
+
+def surface_distance(points: np.ndarray, obstacles: Obstacles) -> np.ndarray:
+    """(P, N) distances of points to each obstacle (0 inside)."""
+    out = []
+    shapes = zip(obstacles.kinds, obstacles.positions_m, obstacles.half_sizes_m, strict=True)
+    for kind, centre, half in shapes:
+        rel = points - centre
+        if kind == C.OBSTACLE_BOX:
+            outside = np.maximum(np.abs(rel) - half, 0.0)
+        else:
+            radial = np.linalg.norm(rel[:, :2], axis=1) - half[0]
+            outside = np.stack(
+                [np.maximum(radial, 0.0), np.maximum(np.abs(rel[:, 2]) - half[2], 0.0)], 1
+            )
+        out.append(np.linalg.norm(outside, axis=1))
+    return np.stack(out, 1)
+
+
+@pytest.fixture(scope="module")
+def blocked_env():
+    env = ReachEnv(
+        num_obstacles=2,
+        task_family="blocked",
+        obs_mode="both",
+        num_views=VIEWS,
+        image_size=SIZE,
+    )
+    yield env
+    env.close()
+
+
+def test_obstacle_points_lie_on_the_obstacles(blocked_env):
+    occupancy = DepthOccupancy(VIEWS, SIZE, SIZE)
+    for seed in TEST_SEEDS.seeds(4):
+        obs, _ = blocked_env.reset(seed=int(seed))
+        occupancy.reset()
+        points = occupancy.update(obs)
+        distance = surface_distance(points, blocked_env.unwrapped.scene.obstacles)
+        # Voxel centres: within a voxel's half diagonal and the depth's quantisation.
+        assert distance.min(axis=1).max() < 0.015
+        # Every obstacle is seen, from several points.
+        assert ((distance < 0.015).sum(axis=0) >= 10).all()
+
+
+def test_arm_clearance_to_points_and_table():
+    arm = ArmCapsules()
+    model, data = arm.scene.model, arm.scene.data
+    table_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table")
+    rng = np.random.default_rng(0)
+    for joints in [np.array([0.0, -1.2, 1.4, -1.8, -1.57, 0.0]), *rng.uniform(-1.5, 1.5, (10, 6))]:
+        table = arm.clearance(joints, np.empty((0, 3)))
+        arm.scene.set_joints(joints)
+        # MuJoCo's own distances of the geoms that can touch the table; the gripper's cylinders
+        # are capsules here, up to their radius nearer.
+        exact = min(
+            mujoco.mj_geomDistance(model, data, int(g), table_geom, 2.0, None)
+            for g in arm.geoms[arm.touch_table]
+        )
+        if exact > 0:  # (deep inside the thick table the two measure depth differently)
+            assert exact - 0.04 <= table <= exact + 1e-6
+        else:
+            assert table < 0
+    joints = np.array([0.0, -1.2, 1.4, -1.8, -1.57, 0.0])
+    table = arm.clearance(joints, np.empty((0, 3)))
+    arm.scene.set_joints(joints)
+    tip = arm.scene.tip_position()
+    assert arm.clearance(joints, tip[None]) < 0  # a point on the gripper
+    far = tip + np.array([0.0, 0.0, 2.0])  # far above the arm: the table is nearer
+    assert arm.clearance(joints, far[None]) == pytest.approx(table)
+
+
+def test_depth_shield_keeps_blind_ik_interpolation_off_the_obstacles(blocked_env):
+    seeds = TEST_SEEDS.seeds(4)
+    blind = evaluate(blocked_env, IKInterpolationPolicy(), seeds)
+    assert all(r.collided for r in blind)  # blocked tasks: the blind path collides
+    shield = DepthShield(IKInterpolationPolicy(), VIEWS, SIZE, margin_m=0.01)
+    shielded = evaluate(blocked_env, shield, seeds)
+    assert shield.num_shielded > 0
+    assert sum(r.collided for r in shielded) <= 1
