@@ -244,6 +244,10 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-shield-m", "-1"
     )
     assert "bad --depth-shield-m: margin_m must be a number >= 0, got -1.0" in message
+    message = refused(
+        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-planner"
+    )
+    assert "--depth-planner needs --depth-shield-m" in message
 
 
 def test_eval_rrt_without_ompl_says_what_to_install(workdir, monkeypatch):

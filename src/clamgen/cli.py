@@ -375,6 +375,10 @@ class EvalConfig:
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen
     and the table (`clamgen.experiments.depth_shield`, beyond the paper). Off by default."""
+    depth_planner: bool = False
+    """With --depth-shield-m: when the policy stops making progress towards the target, plan a
+    path on the depth map it has seen with RRT-Connect and follow it
+    (`clamgen.experiments.depth_planner`, beyond the paper; needs OMPL)."""
 
 
 TABLE2_ROW_NAMES = {
@@ -435,8 +439,12 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
+    if config.depth_planner and config.depth_shield_m is None:
+        raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     if config.depth_shield_m is not None:
-        policy, source = _with_depth_shield(policy, source, env_kwargs, config.depth_shield_m)
+        policy, source = _with_depth_shield(
+            policy, source, env_kwargs, config.depth_shield_m, config.depth_planner
+        )
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -471,8 +479,14 @@ def evaluate_table(config: EvalConfig) -> list:
     return rows
 
 
-def _with_depth_shield(policy, source: str, env_kwargs: dict, margin_m: float):
-    """`policy` acting through the depth shield; SystemExit unless it observes depth images."""
+def _with_depth_shield(
+    policy, source: str, env_kwargs: dict, margin_m: float, planner: bool = False
+):
+    """`policy` acting through the depth shield (and with `planner`, planning on the depth map
+    when stuck); SystemExit unless it observes its joints and depth images."""
+    from importlib.util import find_spec
+
+    from clamgen.experiments.depth_planner import DepthShieldPlanner
     from clamgen.experiments.depth_shield import DepthShield
 
     views = env_kwargs.get("num_views", 0)
@@ -481,11 +495,15 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, margin_m: float):
             "--depth-shield-m needs a vision residual (a policy that observes its joints and "
             "RGBD views)"
         )
+    if planner and find_spec("ompl") is None:
+        raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
+    wrapper = DepthShieldPlanner if planner else DepthShield
     try:
-        shielded = DepthShield(policy, views, env_kwargs["image_size"], margin_m)
+        shielded = wrapper(policy, views, env_kwargs["image_size"], margin_m)
     except ValueError as error:
         raise SystemExit(f"bad --depth-shield-m: {error}") from error
-    return shielded, f"{source} + depth shield ({margin_m} m)"
+    source += f" + depth shield ({margin_m} m)" + (" + planner when stuck" if planner else "")
+    return shielded, source
 
 
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):

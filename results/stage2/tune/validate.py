@@ -93,6 +93,12 @@ def main() -> None:
         "(clamgen.experiments.depth_shield), keeping this clearance",
     )
     parser.add_argument(
+        "--depth-planner",
+        action="store_true",
+        help="with --depth-shield: plan on the depth map when the policy is stuck "
+        "(clamgen.experiments.depth_planner)",
+    )
+    parser.add_argument(
         "--no-slide",
         action="store_true",
         help="the depth shield's alternatives leave out the slid action",
@@ -136,7 +142,14 @@ def main() -> None:
                 + (f", margin {args.lookahead_margin} m" if args.lookahead_margin else "")
                 + (", fixed library)" if args.lookahead_fixed_offsets else ")")
             )
-        if args.depth_shield is not None:
+        if args.depth_shield is not None and args.depth_planner:
+            from clamgen.experiments.depth_planner import DepthShieldPlanner
+
+            policy = DepthShieldPlanner(
+                policy, env_kwargs["num_views"], env_kwargs["image_size"], args.depth_shield
+            )
+            label += f" (depth shield {args.depth_shield} m + planner when stuck)"
+        elif args.depth_shield is not None:
             from clamgen.experiments.depth_shield import DepthShield
 
             policy = DepthShield(
@@ -155,6 +168,8 @@ def main() -> None:
         score(policy, label, source, env_kwargs, args.num_tasks, args.families)
         if args.depth_shield is not None:
             print(f"  shielded steps: {policy.num_shielded} of {policy.num_steps}")
+            if args.depth_planner:
+                print(f"  plans: {policy.num_paths} found of {policy.num_plans}")
 
 
 def score(policy, label, source, env_kwargs, num_tasks, families=("blocked", "obstacles")):

@@ -1,0 +1,141 @@
+"""When a shielded vision policy stops making progress, a plan on its own depth map (beyond the
+paper).
+
+`DepthShieldPlanner` is a `DepthShield` (`clamgen.experiments.depth_shield`) that watches the
+tip's distance to the target. When it has not come `PROGRESS_M` closer in `STUCK_STEPS`
+steps (the policy pressing against an obstacle, or circling), it plans a joint path to the
+target with OMPL's RRT-Connect (`clamgen.baselines.rrt.plan_joint_path`), on the obstacle
+surface the shield has seen so far: a state is valid when the arm keeps the shield's margin
+from that surface and from the table. It follows the path, still through the shield, and
+plans again if it gets stuck once more (at most `MAX_PLANS` plans an episode). Without a path
+the policy keeps acting.
+
+Nothing privileged is read: the depth images, joints and goal of the observation, the
+cameras' fixed poses and the arm's kinematics. RRT with the full scene model (the `rrt`
+baseline) knows the obstacles exactly; this planner knows only what the cameras have shown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from clamgen.baselines.rrt import WAYPOINT_REACHED_TOL_RAD, RRTConfig, plan_joint_path
+from clamgen.envs.reach_env import MAX_JOINT_DELTA_RAD, SUCCESS_DISTANCE_M
+from clamgen.experiments.depth_shield import MARGIN_M, DepthShield
+from clamgen.robot import ur5
+from clamgen.robot.kinematics import solve_tip_position, wrap_joints
+
+STUCK_STEPS = 10
+"""Steps without `PROGRESS_M` of progress towards the target before planning."""
+PROGRESS_M = 0.01
+MAX_PLANS = 3
+"""Plans an episode at most."""
+PLAN_TIME_S = 1.0
+"""RRT-Connect's budget per plan, shared by the goal candidates."""
+MAX_GOAL_CANDIDATES = 4
+
+
+class DepthShieldPlanner(DepthShield):
+    """A vision policy through the depth shield, planning on the depth map when stuck (a
+    `Policy`). After each episode: `num_plans` tried and `num_paths` found, in all."""
+
+    def __init__(
+        self,
+        policy,
+        num_views: int,
+        image_size: int,
+        margin_m: float = MARGIN_M,
+        seed: int = 0,
+        stuck_steps: int = STUCK_STEPS,
+        rrt: RRTConfig | None = None,
+    ) -> None:
+        super().__init__(policy, num_views, image_size, margin_m, seed)
+        if stuck_steps < 1:
+            raise ValueError(f"stuck_steps must be >= 1, got {stuck_steps}")
+        self.stuck_steps = stuck_steps
+        base = rrt if rrt is not None else RRTConfig()
+        self.rrt = replace(base, time_limit_s=PLAN_TIME_S, max_goal_candidates=MAX_GOAL_CANDIDATES)
+        self.num_plans = 0
+        self.num_paths = 0
+        self._reset_episode()
+
+    def _reset_episode(self) -> None:
+        self.distances: list[float] = []
+        self.waypoints: np.ndarray | None = None
+        self._next = 0
+        self._plans = 0
+
+    def reset(self, env: Any | None = None) -> None:
+        super().reset(env)
+        self._reset_episode()
+
+    def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        from clamgen.experiments.shield import choose_action
+
+        self.checker.points = self.occupancy.update(obs)
+        joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+        goal = np.asarray(obs["desired_goal"], np.float64)
+        self.distances.append(float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - goal)))
+        if self._stuck() and self._plans < MAX_PLANS:
+            self._plans += 1
+            self.num_plans += 1
+            self.waypoints, self._next = self.plan(joints, goal), 0
+            self.num_paths += int(self.waypoints is not None)
+            self.distances = self.distances[-1:]
+        if self.waypoints is not None:
+            action = self._follow(joints)
+        else:
+            action = np.asarray(self.policy.act(obs), np.float64)
+        self.num_steps += 1
+        pre = np.arctanh(np.clip(action, -0.995, 0.995))
+        chosen, shielded = choose_action(
+            self.checker, joints, action, pre, self.perturbations, self.sliding
+        )
+        self.num_shielded += int(shielded)
+        return chosen
+
+    def _stuck(self) -> bool:
+        d = self.distances
+        return (
+            len(d) > self.stuck_steps
+            and d[-1] > SUCCESS_DISTANCE_M
+            and d[-1 - self.stuck_steps] - d[-1] < PROGRESS_M
+        )
+
+    def _follow(self, joints: np.ndarray) -> np.ndarray:
+        last = len(self.waypoints) - 1
+        while (
+            self._next < last
+            and np.max(np.abs(self.waypoints[self._next] - joints)) <= WAYPOINT_REACHED_TOL_RAD
+        ):
+            self._next += 1
+        delta = self.waypoints[self._next] - joints
+        return np.clip(delta / MAX_JOINT_DELTA_RAD, -1.0, 1.0)
+
+    def plan(self, joints: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """Waypoints (n, 6) from `joints` to an IK solution for `goal` on the depth map, or
+        None. A state is valid when the arm keeps the margin (or, when the arm is nearer
+        already, its present clearance) from the seen surface and the table."""
+        clearance = self.checker.clearance
+        keep = min(self.checker.margin_m, clearance(joints)) - 1e-6
+        if keep < 0:
+            return None
+        solutions = solve_tip_position(goal, reference_joints=ur5.HOME_JOINTS)
+        if len(solutions) == 0:
+            return None
+        solutions = wrap_joints(solutions, joints)
+        solutions = solutions[[clearance(q) >= keep for q in solutions]]
+        order = np.argsort(np.max(np.abs(solutions - joints), axis=1), kind="stable")
+        candidates = solutions[order][: self.rrt.max_goal_candidates]
+        budget = self.rrt.time_limit_s / max(1, len(candidates))
+        for target in candidates:
+            result = plan_joint_path(
+                lambda q: clearance(q) >= keep, joints, target, self.rrt, budget
+            )
+            if result.succeeded:
+                return result.waypoints
+        return None
