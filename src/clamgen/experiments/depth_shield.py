@@ -22,7 +22,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD, MAX_JOINT_DELTA_RAD
 from clamgen.robot import ur5
+from clamgen.robot.kinematics import forward_kinematics
 from clamgen.sim import constants as C
 from clamgen.sim.render import camera_intrinsics, uint8_to_depth
 from clamgen.sim.scene import Scene
@@ -36,8 +38,9 @@ ARM_FILTER_M = 0.006
 rendered arm is its collision capsules, and a depth pixel lies on the surface it sees to
 within half the uint8 depth step (4.3 mm). Wider, it hides the obstacle surface next to the
 gripper, where the shield needs it most."""
-TARGET_FILTER_M = 0.02
-"""Points within this of the target sphere's surface are target."""
+TARGET_FILTER_M = 0.006
+"""Points within this of the target sphere's surface are target (as `ARM_FILTER_M`)."""
+TARGET_REACH_M = C.TARGET_RADIUS_M + TARGET_FILTER_M
 PEDESTAL_RADIUS_M = 0.09
 PEDESTAL_TOP_M = 0.01
 """The pedestal (a 7.5 cm cylinder up to z = 0) is not an obstacle."""
@@ -48,6 +51,8 @@ FAR_CLIP_M = C.DEPTH_RANGE_M[1] - 0.05
 """Depth at or beyond the stored range's far end is background."""
 MARGIN_M = 0.01
 """Clearance the depth shield keeps: about a voxel (chosen on validation tasks)."""
+ARM_REACH_M = 1.2
+"""Farther than any point of the arm gets from the base (UR5 reach 0.85 m, and the gripper)."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -84,6 +89,16 @@ class ArmCapsules:
         self.half_lengths = model.geom_size[self.geoms, 1].copy()
         # Geoms that can touch the table (the shoulder column stands on the base and cannot).
         self.touch_table = (model.geom_contype[self.geoms] & C.TABLE_BIT) != 0
+        # For many configurations at once (`clearances`): each geom's axis in the DH frame of
+        # its link (body link{i} carries DH frame i), read off once.
+        bodies = [model.body(int(model.geom_bodyid[g])).name for g in self.geoms]
+        self._frame = np.array([int(name.removeprefix("link")) - 1 for name in bodies])
+        starts, ends = self.segments(ur5.HOME_JOINTS)
+        inverse = np.linalg.inv(forward_kinematics(ur5.HOME_JOINTS)[self._frame])
+        self._local = np.stack([starts, ends], axis=1)  # (G, 2, 3)
+        self._local = np.einsum("gij,gkj->gki", inverse[:, :3, :3], self._local) + inverse[
+            :, None, :3, 3
+        ]
 
     def segments(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(starts, ends), each (G, 3), of the geoms' axes at `joints`."""
@@ -94,6 +109,27 @@ class ArmCapsules:
         axes = data.geom_xmat[self.geoms].reshape(-1, 3, 3)[:, :, 2]
         offset = axes * self.half_lengths[:, None]
         return centres - offset, centres + offset
+
+    def segments_many(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(starts, ends), each (B, G, 3), of the geoms' axes at joints (B, 6), by the
+        analytic kinematics (batched)."""
+        frames = forward_kinematics(np.asarray(joints, np.float64))[:, self._frame]  # B, G
+        ends = np.einsum("bgij,gkj->bgki", frames[..., :3, :3], self._local)
+        ends = ends + frames[..., None, :3, 3]
+        return ends[:, :, 0], ends[:, :, 1]
+
+    def clearances(self, joints: np.ndarray, points: np.ndarray, cap: float) -> np.ndarray:
+        """`clearance` at each of joints (B, 6), capped at `cap`: (B,)."""
+        starts, ends = self.segments_many(joints)
+        lowest = np.minimum(starts[..., 2], ends[..., 2]) - self.radii
+        out = np.minimum(cap, (lowest[:, self.touch_table] - C.TABLE_TOP_Z_M).min(axis=1))
+        b, g = starts.shape[:2]
+        flat_starts, flat_ends = starts.reshape(-1, 3), ends.reshape(-1, 3)
+        points = points[self.near(points, flat_starts, flat_ends, cap)]
+        if len(points):
+            surface = _segment_distance(points, flat_starts, flat_ends).reshape(-1, b, g)
+            out = np.minimum(out, (surface - self.radii).min(axis=(0, 2)))
+        return out
 
     def near(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray, reach: float):
         """Indices of `points` in the box around the arm's segments widened by its largest
@@ -144,27 +180,39 @@ class DepthOccupancy:
         self.shape = (num_views, height, width)
         self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
         self._grid = np.zeros(int(np.prod(self._dims)), bool)
+        self._strides = np.array([self._dims[1] * self._dims[2], self._dims[2], 1])
         self._cells = np.empty(0, np.int64)
         self.points = np.empty((0, 3))
+        self._last_depth: np.ndarray | None = None
 
     def reset(self) -> None:
+        self._last_depth = None
         self._grid[self._cells] = False
         self._cells = np.empty(0, np.int64)
         self.points = np.empty((0, 3))
 
-    def lift(self, images: np.ndarray) -> np.ndarray:
+    def lift(self, images: np.ndarray, changed_only: bool = False) -> np.ndarray:
         """World points (N, 3) of the views' depth pixels that are not background and lie
-        above the table."""
+        above the table; with `changed_only`, of those whose depth changed since the last
+        call (a pixel that shows the same depth shows the same point, already looked at)."""
         images = np.asarray(images)
         if images.shape[0] != self.shape[0] or images.shape[2:] != self.shape[1:]:
             raise ValueError(
                 f"expected images of shape (V, 4, H, W) with (V, H, W) = {self.shape}, "
                 f"got {images.shape}"
             )
-        depth = uint8_to_depth(images[:, 3]).reshape(-1)
-        height = self.origins[:, 2] + depth * self.rays[:, 2]
-        keep = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
-        return (self.origins[keep] + depth[keep, None] * self.rays[keep]).astype(np.float64)
+        depth_u8 = images[:, 3].reshape(-1)
+        if changed_only and self._last_depth is not None:
+            pixels = np.flatnonzero(depth_u8 != self._last_depth)
+        else:
+            pixels = np.arange(len(depth_u8))
+        if changed_only:
+            self._last_depth = depth_u8.copy()
+        depth = uint8_to_depth(depth_u8[pixels])
+        height = self.origins[pixels, 2] + depth * self.rays[pixels, 2]
+        valid = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
+        depth, keep = depth[valid], pixels[valid]
+        return (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
 
     def voxel_centres(self, cells: np.ndarray) -> np.ndarray:
         return GRID_LOW_M + (np.stack(np.unravel_index(cells, self._dims), axis=1) + 0.5) * VOXEL_M
@@ -175,14 +223,15 @@ class DepthOccupancy:
         """Voxels (flat indices) of obstacle surface in `images` not yet kept: lifted points
         above the table, off the target, the pedestal and the arm at `joints`, with another
         such point near."""
-        points = self.lift(images)
-        radial = np.linalg.norm(points[:, :2], axis=1)
-        points = points[(radial > PEDESTAL_RADIUS_M) | (points[:, 2] > PEDESTAL_TOP_M)]
-        target = np.linalg.norm(points - np.asarray(goal)[None], axis=1)
-        points = points[target > C.TARGET_RADIUS_M + TARGET_FILTER_M]
-        voxels = np.floor((points - GRID_LOW_M) / VOXEL_M).astype(np.int64)
-        inside = ((voxels >= 0) & (voxels < self._dims)).all(axis=1)
-        cells = np.ravel_multi_index(voxels[inside].T, self._dims)
+        points = self.lift(images, changed_only=True)
+        radial2 = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
+        off_target = points - np.asarray(goal)
+        keep = (radial2 > PEDESTAL_RADIUS_M**2) | (points[:, 2] > PEDESTAL_TOP_M)
+        keep &= np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2
+        points = points[keep]
+        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+        inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        cells = voxels[inside] @ self._strides
         new = ~self._grid[cells]
         cells, points = cells[new], points[inside][new]
         if len(cells):
@@ -219,6 +268,47 @@ class DepthClearance:
 
     def clearance(self, joints: np.ndarray) -> float:
         return self.arm.clearance(joints, self.points, cap=self.margin_m)
+
+    def clearances(self, joints: np.ndarray) -> np.ndarray:
+        return self.arm.clearances(joints, self.points, cap=self.margin_m)
+
+    def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
+        """`shield.step_clearance`, with a shortcut for the usual step far from everything:
+        when no kept point lies in the box around the arm at both ends of the step, and the
+        arm's lowest point at both ends is well above the table, every check along the step
+        would return the margin. (Between its ends a point of the arm strays from the straight
+        line by at most R theta^2 / 8, R its distance from the base and theta the joints'
+        summed change: about 3 mm for a typical step; the box is widened by that bound.)"""
+        low, high = ur5.JOINT_LIMITS.T
+        target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, low, high)
+        ends = [self.arm.segments(q) for q in (joints, target)]
+        tips = np.concatenate([np.concatenate(pair) for pair in ends])
+        theta = float(np.abs(target - joints).sum())
+        reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
+        radius = self.arm.radii.max() + reach
+        table_ok = all(
+            (np.minimum(a[:, 2], b[:, 2]) - self.arm.radii)[self.arm.touch_table].min()
+            >= C.TABLE_TOP_Z_M + reach
+            for a, b in ends
+        )
+        if table_ok and len(self.points):
+            inside = (self.points > tips.min(0) - radius) & (self.points < tips.max(0) + radius)
+            table_ok = not inside.all(axis=1).any()
+        if table_ok:
+            return self.margin_m
+        return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+
+    def step_clearances(self, joints: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """`shield.step_clearance` of each of actions (A, 6), all checks in one batch: (A,)."""
+        low, high = ur5.JOINT_LIMITS.T
+        deltas = np.clip(joints + actions * MAX_JOINT_DELTA_RAD, low, high) - joints
+        counts = np.maximum(
+            1, np.ceil(np.abs(deltas).max(axis=1) / COLLISION_CHECK_RESOLUTION_RAD).astype(int)
+        )
+        fractions = np.concatenate([np.arange(1, n + 1) / n for n in counts])
+        owner = np.repeat(np.arange(len(actions)), counts)
+        values = self.clearances(joints + fractions[:, None] * deltas[owner])
+        return np.minimum.reduceat(values, np.concatenate([[0], np.cumsum(counts)[:-1]]))
 
 
 class DepthShield:

@@ -99,8 +99,14 @@ class ClearanceChecker:
         distances = contact.dist[:n] + np.where(obstacle, self.margin_m, 0.0)
         return float(min(self.margin_m, distances.min()))
 
+    def clearances(self, joints: np.ndarray) -> np.ndarray:
+        return np.array([self.clearance(q) for q in joints])
+
     def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
         return step_clearance(self, joints, action)
+
+    def step_clearances(self, joints: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return np.array([step_clearance(self, joints, a) for a in actions])
 
 
 def step_clearance(checker, joints: np.ndarray, action: np.ndarray) -> float:
@@ -128,8 +134,8 @@ def slide(checker, joints: np.ndarray, action: np.ndarray, keep: float) -> np.nd
         now = checker.clearance(target)
         if now >= keep:
             break
-        eye = np.eye(len(target)) * SLIDE_EPS_RAD
-        gradient = np.array([(checker.clearance(target + e) - now) / SLIDE_EPS_RAD for e in eye])
+        moved = checker.clearances(target + np.eye(len(target)) * SLIDE_EPS_RAD)
+        gradient = (moved - now) / SLIDE_EPS_RAD
         norm2 = float(gradient @ gradient)
         if norm2 < 1e-12:
             break
@@ -146,7 +152,9 @@ def choose_action(
     sliding: bool = False,
 ) -> tuple[np.ndarray, bool]:
     """The shield's choice for `action` (`pre`: before the tanh) at `joints`, and whether it
-    replaced it. `checker` has `margin_m` and `clearance(joints)` (capped at the margin).
+    replaced it. `checker` has `margin_m`, `clearance(joints)` (capped at the margin),
+    `clearances` of a batch of joints, and `step_clearance(joints, action)` (the smallest
+    along the step) and `step_clearances` of a batch of actions.
 
     A step that keeps its clearance (stays `margin_m` away, or does not come closer when it
     already is nearer) is taken unchanged; otherwise the nearest alternative (the action
@@ -154,17 +162,20 @@ def choose_action(
     the most. Staying keeps the clearance exactly, so some alternative always passes. With
     `sliding`, the action with its motion into the obstacles taken out (`slide`, the least
     change that keeps the clearance) is tried first."""
+    step = checker.step_clearance(joints, action)
+    if step >= checker.margin_m:  # (the usual case, and no need to know the clearance now)
+        return np.asarray(action, dtype=np.float32), False
     keep = min(checker.clearance(joints), checker.margin_m)
-    if step_clearance(checker, joints, action) >= keep:
+    if step >= keep:
         return np.asarray(action, dtype=np.float32), False
     if sliding:
         slid = slide(checker, joints, action, keep)
-        if step_clearance(checker, joints, slid) >= keep:
+        if checker.step_clearance(joints, slid) >= keep:
             return slid.astype(np.float32), True
     pre = np.clip(pre, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
     alternatives = [f * action for f in SHORTENED]
     alternatives += list(np.tanh(pre + offsets))
-    clearances = np.array([step_clearance(checker, joints, a) for a in alternatives])
+    clearances = checker.step_clearances(joints, np.array(alternatives))
     distances = np.array([np.linalg.norm(a - action) for a in alternatives])
     ok = clearances >= keep
     if ok.any():
