@@ -584,6 +584,12 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
+        if config.depth_planner and config.depth_shield_m is None:
+            raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
+        if config.depth_shield_m is not None:
+            policy, _ = _with_depth_shield(
+                policy, "", env_kwargs, config.depth_shield_m, config.depth_planner
+            )
         env_id = _policy_env_id(config.policy)
         if env_id in ENV_IDS:
             summary = render_rollouts(config, policy, label, env_kwargs)

@@ -53,6 +53,12 @@ class RenderConfig:
     """Frames per second (the control rate is 20 Hz: real time)."""
     gif_scale: float = 0.5
     """Scale of the GIF frames relative to the MP4's (GIFs get large)."""
+    depth_shield_m: float | None = None
+    """A vision residual acts through the collision shield on its own depth images, keeping
+    this clearance (m), as `clamgen eval --depth-shield-m`. Off by default."""
+    depth_planner: bool = False
+    """With --depth-shield-m: plan on the depth map when the policy is stuck, as `clamgen
+    eval --depth-planner`."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
