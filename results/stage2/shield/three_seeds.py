@@ -1,0 +1,54 @@
+"""The depth shield, and the shield with the planner, on the three training seeds of the
+shipped `residual-3views` recipe: seed 0 is the shipped policy
+(results/table2/shielded_residual-3views.json, planned_residual-3views.json), seeds 1 and 2
+the lookahead-fixed sweep's runs (fixed3_seed*_shielded.json, fixed3_seed*_planned.json here).
+Mean success per task family with rliable's 95% stratified-bootstrap interval, and each seed's
+collision rate:
+
+    python results/stage2/shield/three_seeds.py
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from clamgen.experiments.aggregate import aggregate_rows
+
+HERE = Path(__file__).resolve().parent
+TABLE2 = HERE.parents[1] / "table2"
+FAMILIES = ("obstacles", "blocked")
+VARIANTS = {
+    "depth shield": ("shielded_residual-3views.json", "fixed3_seed{}_shielded.json"),
+    "depth shield + planner when stuck": (
+        "planned_residual-3views.json",
+        "fixed3_seed{}_planned.json",
+    ),
+}
+
+
+def _scores(path: Path) -> dict[str, tuple[float, float]]:
+    rows = json.loads(path.read_text())["rows"]
+    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
+
+
+def main() -> None:
+    for variant, (shipped, other) in VARIANTS.items():
+        seeds = [_scores(TABLE2 / shipped)] + [_scores(HERE / other.format(s)) for s in (1, 2)]
+        print(f"{variant} (3 seeds: 0 shipped, 1, 2)")
+        for family in FAMILIES:
+            values = np.array([[seed[family][0]] for seed in seeds])
+            stats = aggregate_rows({family: values})[family]
+            per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
+            collision = ", ".join(f"{seed[family][1]:.3f}" for seed in seeds)
+            print(
+                f"  {family:9s} success mean {stats.mean.value:.3f} "
+                f"({stats.mean.low:.3f}-{stats.mean.high:.3f}); per seed {per_seed}; "
+                f"collision per seed {collision}"
+            )
+
+
+if __name__ == "__main__":
+    main()
