@@ -7,6 +7,7 @@ import dataclasses
 import functools
 import importlib
 import json
+import shlex
 import sys
 import tempfile
 import time
@@ -469,7 +470,7 @@ def evaluate_table(config: EvalConfig) -> list:
         "observation": policy_observation(policy),
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
-        "command": "clamgen eval " + " ".join(sys.argv[2:]),
+        "command": "clamgen eval " + shlex.join(sys.argv[2:]),
         **({"note": note} if note else {}),
     }
     write_table1(rows, out, meta)
@@ -557,7 +558,7 @@ def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: 
         "env_id": env_id,
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
-        "command": "clamgen eval " + " ".join(sys.argv[2:]),
+        "command": "clamgen eval " + shlex.join(sys.argv[2:]),
         **summary,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -678,7 +679,7 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
         "policy": source,
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
-        "command": "clamgen eval " + " ".join(sys.argv[2:]),
+        "command": "clamgen eval " + shlex.join(sys.argv[2:]),
     }
     write_table2(rows, out, meta)
     print(table2_markdown(rows))
