@@ -99,6 +99,13 @@ def main() -> None:
         "(clamgen.experiments.depth_planner)",
     )
     parser.add_argument(
+        "--extrude",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="with --depth-shield: take the hidden side of each seen surface as filled this deep",
+    )
+    parser.add_argument(
         "--no-slide",
         action="store_true",
         help="the depth shield's alternatives leave out the slid action",
@@ -146,9 +153,14 @@ def main() -> None:
             from clamgen.experiments.depth_planner import DepthShieldPlanner
 
             policy = DepthShieldPlanner(
-                policy, env_kwargs["num_views"], env_kwargs["image_size"], args.depth_shield
+                policy,
+                env_kwargs["num_views"],
+                env_kwargs["image_size"],
+                args.depth_shield,
+                extrude_m=args.extrude,
             )
-            label += f" (depth shield {args.depth_shield} m + planner when stuck)"
+            label += f" (depth shield {args.depth_shield} m + planner when stuck"
+            label += f", extruded {args.extrude} m)" if args.extrude else ")"
         elif args.depth_shield is not None:
             from clamgen.experiments.depth_shield import DepthShield
 
@@ -158,10 +170,10 @@ def main() -> None:
                 env_kwargs["image_size"],
                 args.depth_shield,
                 sliding=not args.no_slide,
+                extrude_m=args.extrude,
             )
-            label += f" (depth shield {args.depth_shield} m" + (
-                ")" if args.no_slide else ", slide)"
-            )
+            label += f" (depth shield {args.depth_shield} m" + ("" if args.no_slide else ", slide")
+            label += f", extruded {args.extrude} m)" if args.extrude else ")"
         if args.clearance:
             label += f" [scored with {args.clearance} m clearance]"
             env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}

@@ -52,8 +52,9 @@ class DepthShieldPlanner(DepthShield):
         seed: int = 0,
         stuck_steps: int = STUCK_STEPS,
         rrt: RRTConfig | None = None,
+        extrude_m: float = 0.0,
     ) -> None:
-        super().__init__(policy, num_views, image_size, margin_m, seed)
+        super().__init__(policy, num_views, image_size, margin_m, seed, extrude_m=extrude_m)
         if stuck_steps < 1:
             raise ValueError(f"stuck_steps must be >= 1, got {stuck_steps}")
         self.stuck_steps = stuck_steps

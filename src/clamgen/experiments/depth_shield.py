@@ -165,8 +165,16 @@ class DepthOccupancy:
     `constants.CAMERAS`) and image size.
     """
 
-    def __init__(self, num_views: int, height: int, width: int, arm: ArmCapsules | None = None):
+    def __init__(
+        self,
+        num_views: int,
+        height: int,
+        width: int,
+        arm: ArmCapsules | None = None,
+        extrude_m: float = 0.0,
+    ):
         self.arm = arm if arm is not None else ArmCapsules()
+        self.extrude_m = extrude_m
         scene = self.arm.scene
         mujoco.mj_kinematics(scene.model, scene.data)
         rays = []
@@ -180,6 +188,7 @@ class DepthOccupancy:
         # Per pixel, flattened over views: the camera's position and the world offset per metre
         # of depth.
         self.rays = np.stack(rays).reshape(-1, 3).astype(np.float32)
+        self.directions = self.rays / np.linalg.norm(self.rays, axis=1, keepdims=True)
         origins = scene.data.cam_xpos[scene.camera_ids[:num_views]].astype(np.float32)
         self.origins = np.repeat(origins, height * width, axis=0)
         self.shape = (num_views, height, width)
@@ -196,10 +205,13 @@ class DepthOccupancy:
         self._cells = np.empty(0, np.int64)
         self.points = np.empty((0, 3))
 
-    def lift(self, images: np.ndarray, changed_only: bool = False) -> np.ndarray:
+    def lift(
+        self, images: np.ndarray, changed_only: bool = False, with_rays: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """World points (N, 3) of the views' depth pixels that are not background and lie
         above the table; with `changed_only`, of those whose depth changed since the last
-        call (a pixel that shows the same depth shows the same point, already looked at)."""
+        call (a pixel that shows the same depth shows the same point, already looked at).
+        With `with_rays`, also their unit viewing directions (N, 3)."""
         images = np.asarray(images)
         if images.shape[0] != self.shape[0] or images.shape[2:] != self.shape[1:]:
             raise ValueError(
@@ -217,7 +229,10 @@ class DepthOccupancy:
         height = self.origins[pixels, 2] + depth * self.rays[pixels, 2]
         valid = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
         depth, keep = depth[valid], pixels[valid]
-        return (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
+        points = (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
+        if with_rays:
+            return points, self.directions[keep]
+        return points
 
     def voxel_centres(self, cells: np.ndarray) -> np.ndarray:
         return GRID_LOW_M + (np.stack(np.unravel_index(cells, self._dims), axis=1) + 0.5) * VOXEL_M
@@ -228,29 +243,48 @@ class DepthOccupancy:
         """Voxels (flat indices) of obstacle surface in `images` not yet kept: lifted points
         above the table, off the target, the pedestal and the arm at `joints`, with another
         such point near."""
-        points = self.lift(images, changed_only=True)
+        points, directions = self.lift(images, changed_only=True, with_rays=True)
         radial2 = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
         off_target = points - np.asarray(goal)
         keep = (radial2 > PEDESTAL_RADIUS_M**2) | (points[:, 2] > PEDESTAL_TOP_M)
         keep &= np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2
-        points = points[keep]
+        points, directions = points[keep], directions[keep]
         voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
         inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
         cells = voxels[inside] @ self._strides
         new = ~self._grid[cells]
-        cells, points = cells[new], points[inside][new]
+        cells, points, directions = cells[new], points[inside][new], directions[inside][new]
         if len(cells):
-            starts, ends = self.arm.segments(joints)
-            near = self.arm.near(points, starts, ends, ARM_FILTER_M)
-            arm = _segment_distance(points[near], starts, ends) - self.arm.radii[None]
-            off_arm = np.ones(len(cells), bool)
-            off_arm[near[arm.min(axis=1) <= ARM_FILTER_M]] = False
-            cells, points = cells[off_arm], points[off_arm]
+            off_arm = self._off_arm(points, joints)
+            cells, points, directions = cells[off_arm], points[off_arm], directions[off_arm]
         if len(cells):
             others = np.concatenate([points, self.points])
             close = np.linalg.norm(points[:, None] - others[None], axis=-1) < SUPPORT_RADIUS_M
-            cells = cells[close.sum(axis=1) >= 2]  # (itself and another)
+            supported = close.sum(axis=1) >= 2  # (itself and another)
+            cells, points, directions = cells[supported], points[supported], directions[supported]
+        if len(cells) and self.extrude_m > 0:
+            cells = np.concatenate([cells, self._behind(points, directions, joints)])
         return np.unique(cells)
+
+    def _off_arm(self, points: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints`."""
+        starts, ends = self.arm.segments(joints)
+        near = self.arm.near(points, starts, ends, ARM_FILTER_M)
+        arm = _segment_distance(points[near], starts, ends) - self.arm.radii[None]
+        off_arm = np.ones(len(points), bool)
+        off_arm[near[arm.min(axis=1) <= ARM_FILTER_M]] = False
+        return off_arm
+
+    def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
+        """Cells up to `extrude_m` behind surface points along their viewing rays (an obstacle
+        is at least that thick: the side hidden from the cameras is taken as filled), off the
+        arm."""
+        steps = np.arange(1, round(self.extrude_m / VOXEL_M) + 1) * VOXEL_M
+        behind = (points[:, None] + steps[None, :, None] * directions[:, None]).reshape(-1, 3)
+        voxels = np.floor((behind - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+        inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        behind, voxels = behind[inside], voxels[inside]
+        return (voxels @ self._strides)[self._off_arm(behind, joints)]
 
     def update(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """Add the obstacle surface seen in `obs` to the episode's voxels; all voxel centres."""
@@ -320,7 +354,8 @@ class DepthShield:
     """Any vision policy acting through the depth shield (a `Policy`).
 
     `policy`: a `Policy` observing images (and joints and goal); `num_views`, `image_size`:
-    its observation's. Counts `num_shielded` of `num_steps`.
+    its observation's; `extrude_m`: the hidden side of each seen surface is taken as filled
+    this deep (`DepthOccupancy`). Counts `num_shielded` of `num_steps`.
     """
 
     def __init__(
@@ -331,6 +366,7 @@ class DepthShield:
         margin_m: float = MARGIN_M,
         seed: int = 0,
         sliding: bool = True,
+        extrude_m: float = 0.0,
     ) -> None:
         from clamgen.experiments.shield import perturbations
 
@@ -338,7 +374,7 @@ class DepthShield:
             raise ValueError(f"margin_m must be a number >= 0, got {margin_m}")
         self.policy = policy
         arm = ArmCapsules()
-        self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm)
+        self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm, extrude_m)
         self.checker = DepthClearance(arm, margin_m)
         self.perturbations = perturbations(seed)
         self.sliding = sliding
