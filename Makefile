@@ -19,7 +19,8 @@ install: $(VENV)/.installed
 
 # The main job on a small default: the shipped 2-view vision policy beside obstacle-blind IK
 # interpolation on 10 held-out blocked-path tasks (both success rates printed), a GIF of one
-# vision rollout, then a picture of every camera view.
+# vision rollout, then a picture of every camera view. Between them, the same policy acting
+# through the depth shield and planning on the depth map when stuck (beyond the paper).
 demo: install
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --out runs/demo/blocked_clamgen --overwrite
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy ik --out runs/demo/blocked_ik --overwrite
