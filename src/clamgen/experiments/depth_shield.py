@@ -313,29 +313,28 @@ class DepthClearance:
 
     def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
         """`shield.step_clearance`, with a shortcut for the usual step far from everything:
-        when no kept point lies in the box around the arm at both ends of the step, and the
-        arm's lowest point at both ends is well above the table, every check along the step
-        would return the margin. (Between its ends a point of the arm strays from the straight
-        line by at most R theta^2 / 8, R its distance from the base and theta the joints'
-        summed change: about 3 mm for a typical step; the box is widened by that bound.)"""
+        when no kept point lies in the box around any of the arm's geoms at both ends of the
+        step, and the arm's lowest point at both ends is well above the table, every check
+        along the step would return the margin. (Between its ends a point of the arm strays
+        from the straight line by at most R theta^2 / 8, R its distance from the base and
+        theta the joints' summed change: about 3 mm for a typical step; the boxes are widened
+        by that bound.)"""
         low, high = ur5.JOINT_LIMITS.T
         target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, low, high)
-        ends = [self.arm.segments(q) for q in (joints, target)]
-        tips = np.concatenate([np.concatenate(pair) for pair in ends])
         theta = float(np.abs(target - joints).sum())
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
-        radius = self.arm.radii.max() + reach
-        table_ok = all(
-            (np.minimum(a[:, 2], b[:, 2]) - self.arm.radii)[self.arm.touch_table].min()
-            >= C.TABLE_TOP_Z_M + reach
-            for a, b in ends
-        )
-        if table_ok and len(self.points):
-            inside = (self.points > tips.min(0) - radius) & (self.points < tips.max(0) + radius)
-            table_ok = not inside.all(axis=1).any()
-        if table_ok:
-            return self.margin_m
-        return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+        axes = np.stack([*self.arm.segments(joints), *self.arm.segments(target)])  # 4, G, 3
+        lowest = axes[:, :, 2].min(axis=0) - self.arm.radii
+        if lowest[self.arm.touch_table].min() < C.TABLE_TOP_Z_M + reach:
+            return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+        if len(self.points):
+            # Per geom, the box around its axis at both ends widened by its radius and reach.
+            widen = (self.arm.radii + reach)[:, None]
+            box_low, box_high = axes.min(axis=0) - widen, axes.max(axis=0) + widen
+            points = self.points[:, None]
+            if ((points > box_low) & (points < box_high)).all(axis=2).any():
+                return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+        return self.margin_m
 
     def step_clearances(self, joints: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """`shield.step_clearance` of each of actions (A, 6), all checks in one batch: (A,)."""
