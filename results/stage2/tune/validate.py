@@ -106,6 +106,13 @@ def main() -> None:
         help="with --depth-shield: take the hidden side of each seen surface as filled this deep",
     )
     parser.add_argument(
+        "--plan-margin",
+        type=float,
+        default=None,
+        metavar="M",
+        help="with --depth-planner: the clearance its paths keep (default: the shield's)",
+    )
+    parser.add_argument(
         "--no-slide",
         action="store_true",
         help="the depth shield's alternatives leave out the slid action",
@@ -158,8 +165,11 @@ def main() -> None:
                 env_kwargs["image_size"],
                 args.depth_shield,
                 extrude_m=args.extrude,
+                plan_margin_m=args.plan_margin,
             )
             label += f" (depth shield {args.depth_shield} m + planner when stuck"
+            if args.plan_margin is not None:
+                label += f" keeping {args.plan_margin} m"
             label += f", extruded {args.extrude} m)" if args.extrude else ")"
         elif args.depth_shield is not None:
             from clamgen.experiments.depth_shield import DepthShield

@@ -53,8 +53,12 @@ class DepthShieldPlanner(DepthShield):
         stuck_steps: int = STUCK_STEPS,
         rrt: RRTConfig | None = None,
         extrude_m: float = 0.0,
+        plan_margin_m: float | None = None,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, extrude_m=extrude_m)
+        self.plan_margin_m = margin_m if plan_margin_m is None else plan_margin_m
+        if not 0 <= self.plan_margin_m < float("inf"):
+            raise ValueError(f"plan_margin_m must be a number >= 0, got {plan_margin_m}")
         if stuck_steps < 1:
             raise ValueError(f"stuck_steps must be >= 1, got {stuck_steps}")
         self.stuck_steps = stuck_steps
@@ -119,10 +123,14 @@ class DepthShieldPlanner(DepthShield):
 
     def plan(self, joints: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Waypoints (n, 6) from `joints` to an IK solution for `goal` on the depth map, or
-        None. A state is valid when the arm keeps the margin (or, when the arm is nearer
+        None. A state is valid when the arm keeps `plan_margin_m` (or, when the arm is nearer
         already, its present clearance) from the seen surface and the table."""
-        clearance = self.checker.clearance
-        keep = min(self.checker.margin_m, clearance(joints)) - 1e-6
+        margin = self.plan_margin_m
+
+        def clearance(q: np.ndarray) -> float:
+            return self.checker.arm.clearance(q, self.checker.points, cap=margin)
+
+        keep = min(margin, clearance(joints)) - 1e-6
         if keep < 0:
             return None
         solutions = solve_tip_position(goal, reference_joints=ur5.HOME_JOINTS)
