@@ -79,10 +79,7 @@ class DepthShieldPlanner(DepthShield):
         self._reset_episode()
 
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        from clamgen.experiments.shield import choose_action
-
-        self.checker.points = self.occupancy.update(obs)
-        joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+        joints = self.observe(obs)
         goal = np.asarray(obs["desired_goal"], np.float64)
         self.distances.append(float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - goal)))
         if self._stuck() and self._plans < MAX_PLANS:
@@ -95,13 +92,7 @@ class DepthShieldPlanner(DepthShield):
             action = self._follow(joints)
         else:
             action = np.asarray(self.policy.act(obs), np.float64)
-        self.num_steps += 1
-        pre = np.arctanh(np.clip(action, -0.995, 0.995))
-        chosen, shielded = choose_action(
-            self.checker, joints, action, pre, self.perturbations, self.sliding
-        )
-        self.num_shielded += int(shielded)
-        return chosen
+        return self.shield(joints, action)
 
     def _stuck(self) -> bool:
         d = self.distances

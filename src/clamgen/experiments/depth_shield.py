@@ -389,11 +389,18 @@ class DepthShield:
         self.policy.reset(env)
 
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        action = np.asarray(self.policy.act(obs), np.float64)
+        return self.shield(self.observe(obs), action)
+
+    def observe(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Add what `obs` shows to the obstacle map; the arm's joints."""
+        self.checker.points = self.occupancy.update(obs)
+        return np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+
+    def shield(self, joints: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The shield's choice for `action` at `joints` (`shield.choose_action`)."""
         from clamgen.experiments.shield import choose_action
 
-        action = np.asarray(self.policy.act(obs), np.float64)
-        self.checker.points = self.occupancy.update(obs)
-        joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
         self.num_steps += 1
         pre = np.arctanh(np.clip(action, -0.995, 0.995))
         chosen, shielded = choose_action(
