@@ -250,6 +250,13 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
     assert "--depth-planner needs --depth-shield-m" in message
 
 
+def test_render_depth_shield_needs_a_vision_residual_and_the_planner_a_margin(workdir):
+    message = refused(workdir, "render", "--policy", "ik", "--depth-shield-m", "0.01")
+    assert "--depth-shield-m needs a vision residual" in message
+    message = refused(workdir, "render", "--policy", "residual-1view", "--depth-planner")
+    assert "--depth-planner needs --depth-shield-m" in message
+
+
 def test_eval_rrt_without_ompl_says_what_to_install(workdir, monkeypatch):
     for module in ("ompl", "ompl.base", "ompl.geometric", "ompl.util"):
         monkeypatch.setitem(sys.modules, module, None)  # `import` then raises ImportError
