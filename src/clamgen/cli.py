@@ -440,9 +440,7 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
-    if config.depth_planner and config.depth_shield_m is None:
-        raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
-    if config.depth_shield_m is not None:
+    if config.depth_shield_m is not None or config.depth_planner:
         policy, source = _with_depth_shield(
             policy, source, env_kwargs, config.depth_shield_m, config.depth_planner
         )
@@ -481,15 +479,18 @@ def evaluate_table(config: EvalConfig) -> list:
 
 
 def _with_depth_shield(
-    policy, source: str, env_kwargs: dict, margin_m: float, planner: bool = False
+    policy, source: str, env_kwargs: dict, margin_m: float | None, planner: bool = False
 ):
     """`policy` acting through the depth shield (and with `planner`, planning on the depth map
-    when stuck); SystemExit unless it observes its joints and depth images."""
+    when stuck); SystemExit unless it observes its joints and depth images and, with
+    `planner`, a margin is given."""
     from importlib.util import find_spec
 
     from clamgen.experiments.depth_planner import DepthShieldPlanner
     from clamgen.experiments.depth_shield import DepthShield
 
+    if margin_m is None:
+        raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     views = env_kwargs.get("num_views", 0)
     if not views or env_kwargs.get("obs_mode") != "both":
         raise SystemExit(
@@ -585,9 +586,7 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
-        if config.depth_planner and config.depth_shield_m is None:
-            raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
-        if config.depth_shield_m is not None:
+        if config.depth_shield_m is not None or config.depth_planner:
             policy, _ = _with_depth_shield(
                 policy, "", env_kwargs, config.depth_shield_m, config.depth_planner
             )

@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD, MAX_JOINT_DELTA_RAD
+from clamgen.experiments.shield import step_checks, step_target
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import forward_kinematics
 from clamgen.sim import constants as C
@@ -319,8 +319,7 @@ class DepthClearance:
         from the straight line by at most R theta^2 / 8, R its distance from the base and
         theta the joints' summed change: about 3 mm for a typical step; the boxes are widened
         by that bound.)"""
-        low, high = ur5.JOINT_LIMITS.T
-        target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, low, high)
+        target = step_target(joints, action)
         theta = float(np.abs(target - joints).sum())
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
         axes = np.stack([*self.arm.segments(joints), *self.arm.segments(target)])  # 4, G, 3
@@ -338,15 +337,10 @@ class DepthClearance:
 
     def step_clearances(self, joints: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """`shield.step_clearance` of each of actions (A, 6), all checks in one batch: (A,)."""
-        low, high = ur5.JOINT_LIMITS.T
-        deltas = np.clip(joints + actions * MAX_JOINT_DELTA_RAD, low, high) - joints
-        counts = np.maximum(
-            1, np.ceil(np.abs(deltas).max(axis=1) / COLLISION_CHECK_RESOLUTION_RAD).astype(int)
-        )
-        fractions = np.concatenate([np.arange(1, n + 1) / n for n in counts])
-        owner = np.repeat(np.arange(len(actions)), counts)
-        values = self.clearances(joints + fractions[:, None] * deltas[owner])
-        return np.minimum.reduceat(values, np.concatenate([[0], np.cumsum(counts)[:-1]]))
+        checks = [step_checks(joints, action) for action in actions]
+        values = self.clearances(np.concatenate(checks))
+        starts = np.cumsum([0] + [len(c) for c in checks[:-1]])
+        return np.minimum.reduceat(values, starts)
 
 
 class DepthShield:

@@ -109,12 +109,23 @@ class ClearanceChecker:
         return np.array([step_clearance(self, joints, a) for a in actions])
 
 
+def step_target(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
+    """Where the env's joint step for `action` ends (joint limits applied)."""
+    step = np.asarray(action, np.float64) * MAX_JOINT_DELTA_RAD
+    return np.clip(joints + step, *ur5.JOINT_LIMITS.T)
+
+
+def step_checks(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
+    """The configurations (K, 6) the env checks along its straight joint step for `action`,
+    the step's end last."""
+    delta = step_target(joints, action) - joints
+    checks = max(1, int(np.ceil(np.max(np.abs(delta)) / COLLISION_CHECK_RESOLUTION_RAD)))
+    return joints + (np.arange(1, checks + 1) / checks)[:, None] * delta
+
+
 def step_clearance(checker, joints: np.ndarray, action: np.ndarray) -> float:
     """Smallest `checker.clearance` along the env's straight joint step for `action`."""
-    target = np.clip(joints + np.asarray(action) * MAX_JOINT_DELTA_RAD, *ur5.JOINT_LIMITS.T)
-    delta = target - joints
-    checks = max(1, int(np.ceil(np.max(np.abs(delta)) / COLLISION_CHECK_RESOLUTION_RAD)))
-    return min(checker.clearance(joints + delta * (k / checks)) for k in range(1, checks + 1))
+    return min(checker.clearance(q) for q in step_checks(joints, action))
 
 
 def perturbations(seed: int = 0) -> np.ndarray:
@@ -129,7 +140,7 @@ def slide(checker, joints: np.ndarray, action: np.ndarray, keep: float) -> np.nd
     differences), repeated `SLIDE_ITERATIONS` times. The arm then slides along an obstacle
     instead of stopping at it."""
     low, high = ur5.JOINT_LIMITS.T
-    target = np.clip(joints + np.asarray(action, np.float64) * MAX_JOINT_DELTA_RAD, low, high)
+    target = step_target(joints, action)
     for _ in range(SLIDE_ITERATIONS):
         now = checker.clearance(target)
         if now >= keep:
