@@ -118,3 +118,36 @@ def test_planner_on_the_depth_map_reaches_past_the_obstacles(blocked_env):
     assert sum(r.success for r in records) >= 2
     assert not any(r.collided for r in records)
     assert all(r.steps > STUCK_STEPS for r in records)
+
+
+def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
+    from clamgen.experiments.depth_shield import ArmShadow
+
+    env = ReachEnv(num_obstacles=0, obs_mode="both", num_views=1, image_size=SIZE)
+    obs, _ = env.reset(seed=TEST_SEEDS.start)
+    joints = np.asarray(obs["observation"], np.float64)[:6]
+    occupancy = DepthOccupancy(1, SIZE, SIZE)
+    shadow = ArmShadow(occupancy, near_m=0.2)
+    shadow.update(obs["images"], joints)
+    camera = occupancy.arm.scene.camera_ids[0]
+    eye = env.unwrapped.scene.data.cam_xpos[camera].copy()
+    starts, ends = occupancy.arm.segments(joints)
+    gripper = [occupancy.arm.scene.model.geom(int(g)).name for g in occupancy.arm.geoms]
+    hand = 0.5 * (starts + ends)[gripper.index("gripper")]
+    ray = (hand - eye) / np.linalg.norm(hand - eye)
+    behind, before = hand + 0.15 * ray, hand - 0.15 * ray
+    assert shadow.hidden_points(np.stack([behind, before])).tolist() == [True, False]
+    # The hand where it is fills its own shadow: no configuration is refused for being there,
+    # even beside seen obstacle surface.
+    assert not shadow.hidden(joints, behind[None])[0]
+    # Moving the hand some ways reaches into its shadow: refused near seen obstacle surface
+    # behind it, not when the only surface seen is far away.
+    moves = joints + 0.06 * np.concatenate([np.eye(6), -np.eye(6)])
+    assert shadow.hidden(moves, behind[None]).any()
+    assert not shadow.hidden(moves, behind[None] + np.array([0.0, 0.0, 1.0])).any()
+    # Once the arm has turned aside, the camera sees the space it hid.
+    aside = joints + np.array([0.6, 0.0, 0.0, 0.0, 0.0, 0.0])
+    images = env.unwrapped.render_images(aside, np.asarray(obs["desired_goal"]))
+    env.close()
+    shadow.update(images, aside)
+    assert not shadow.hidden_points(behind[None])[0]

@@ -113,6 +113,15 @@ def main() -> None:
         help="with --depth-planner: the clearance its paths keep (default: the shield's)",
     )
     parser.add_argument(
+        "--shadow",
+        type=float,
+        default=None,
+        metavar="M",
+        help="with --depth-shield: the hand keeps out of the space the arm has hidden from "
+        "the cameras since the episode began within M of seen obstacle surface "
+        "(depth_shield.ArmShadow)",
+    )
+    parser.add_argument(
         "--no-slide",
         action="store_true",
         help="the depth shield's alternatives leave out the slid action",
@@ -166,11 +175,13 @@ def main() -> None:
                 args.depth_shield,
                 extrude_m=args.extrude,
                 plan_margin_m=args.plan_margin,
+                shadow_m=args.shadow,
             )
             label += f" (depth shield {args.depth_shield} m + planner when stuck"
             if args.plan_margin is not None:
                 label += f" keeping {args.plan_margin} m"
-            label += f", extruded {args.extrude} m)" if args.extrude else ")"
+            label += f", extruded {args.extrude} m" if args.extrude else ""
+            label += f", arm's shadow within {args.shadow} m kept out)" if args.shadow else ")"
         elif args.depth_shield is not None:
             from clamgen.experiments.depth_shield import DepthShield
 
@@ -181,9 +192,11 @@ def main() -> None:
                 args.depth_shield,
                 sliding=not args.no_slide,
                 extrude_m=args.extrude,
+                shadow_m=args.shadow,
             )
             label += f" (depth shield {args.depth_shield} m" + ("" if args.no_slide else ", slide")
-            label += f", extruded {args.extrude} m)" if args.extrude else ")"
+            label += f", extruded {args.extrude} m" if args.extrude else ""
+            label += f", arm's shadow within {args.shadow} m kept out)" if args.shadow else ")"
         if args.clearance:
             label += f" [scored with {args.clearance} m clearance]"
             env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}

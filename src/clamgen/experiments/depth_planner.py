@@ -54,8 +54,11 @@ class DepthShieldPlanner(DepthShield):
         rrt: RRTConfig | None = None,
         extrude_m: float = 0.0,
         plan_margin_m: float | None = None,
+        shadow_m: float | None = None,
     ) -> None:
-        super().__init__(policy, num_views, image_size, margin_m, seed, extrude_m=extrude_m)
+        super().__init__(
+            policy, num_views, image_size, margin_m, seed, extrude_m=extrude_m, shadow_m=shadow_m
+        )
         self.plan_margin_m = margin_m if plan_margin_m is None else plan_margin_m
         if not 0 <= self.plan_margin_m < float("inf"):
             raise ValueError(f"plan_margin_m must be a number >= 0, got {plan_margin_m}")
@@ -119,7 +122,7 @@ class DepthShieldPlanner(DepthShield):
         margin = self.plan_margin_m
 
         def clearance(q: np.ndarray) -> float:
-            return self.checker.arm.clearance(q, self.checker.points, cap=margin)
+            return self.checker.clearance(q, cap=margin)
 
         keep = min(margin, clearance(joints)) - 1e-6
         if keep < 0:

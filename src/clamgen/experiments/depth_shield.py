@@ -58,6 +58,16 @@ MARGIN_M = 0.01
 """Clearance the depth shield keeps: about a voxel (chosen on validation tasks)."""
 ARM_REACH_M = 1.2
 """Farther than any point of the arm gets from the base (UR5 reach 0.85 m, and the gripper)."""
+SHADOW_GEOMS = ("wrist_3", "gripper", "suction_cup")
+"""The geoms `ArmShadow` keeps out of the space the arm hides: the hand, which hides the most
+right where it moves next."""
+SHADOW_SPACING_M = 0.015
+"""Spacing of the points on those geoms' surfaces that `ArmShadow` checks."""
+SHADOW_TOLERANCE_M = 0.01
+"""A point less than this behind the deepest depth seen at its pixel counts as seen (the
+stored depth's step is 8.6 mm)."""
+HIDDEN_CLEARANCE_M = -0.01
+"""The clearance `DepthClearance` gives a configuration that reaches into hidden space."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -124,17 +134,26 @@ class ArmCapsules:
         return ends[:, :, 0], ends[:, :, 1]
 
     def clearances(self, joints: np.ndarray, points: np.ndarray, cap: float) -> np.ndarray:
-        """`clearance` at each of joints (B, 6), capped at `cap`: (B,)."""
-        starts, ends = self.segments_many(joints)
+        """`clearance` at each of joints (B, 6), capped at `cap`: (B,). Only the pairs of a
+        point and a geom whose box (over all of joints, widened by its radius and `cap`) holds
+        the point are measured: the rest are farther than `cap`."""
+        starts, ends = self.segments_many(joints)  # B, G, 3
         lowest = np.minimum(starts[..., 2], ends[..., 2]) - self.radii
         out = np.minimum(cap, (lowest[:, self.touch_table] - C.TABLE_TOP_Z_M).min(axis=1))
-        b, g = starts.shape[:2]
-        flat_starts, flat_ends = starts.reshape(-1, 3), ends.reshape(-1, 3)
-        points = points[self.near(points, flat_starts, flat_ends, cap)]
-        if len(points):
-            surface = _segment_distance(points, flat_starts, flat_ends).reshape(-1, b, g)
-            out = np.minimum(out, (surface - self.radii).min(axis=(0, 2)))
-        return out
+        reach = (self.radii + cap)[:, None]
+        low = np.minimum(starts, ends).min(axis=0) - reach  # G, 3
+        high = np.maximum(starts, ends).max(axis=0) + reach
+        points = points[((points > low.min(axis=0)) & (points < high.max(axis=0))).all(axis=1)]
+        point, geom = np.nonzero(((points[:, None] > low) & (points[:, None] < high)).all(axis=2))
+        if len(point) == 0:
+            return out
+        start, axis = starts[:, geom], ends[:, geom] - starts[:, geom]  # B, K, 3
+        offset = points[point] - start
+        along = np.einsum("bkj,bkj->bk", offset, axis)
+        t = np.clip(along / np.maximum(np.einsum("bkj,bkj->bk", axis, axis), 1e-12), 0.0, 1.0)
+        gap = offset - t[..., None] * axis
+        surface = np.sqrt(np.einsum("bkj,bkj->bk", gap, gap)) - self.radii[geom]
+        return np.minimum(out, surface.min(axis=1))
 
     def near(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray, reach: float):
         """Indices of `points` in the box around the arm's segments widened by its largest
@@ -248,31 +267,42 @@ class DepthOccupancy:
         off_target = points - np.asarray(goal)
         keep = (radial2 > PEDESTAL_RADIUS_M**2) | (points[:, 2] > PEDESTAL_TOP_M)
         keep &= np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2
-        points, directions = points[keep], directions[keep]
         voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
-        cells = voxels[inside] @ self._strides
+        keep &= (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        index = np.flatnonzero(keep)  # the lifted points still in question
+        cells = voxels[index] @ self._strides
         new = ~self._grid[cells]
-        cells, points, directions = cells[new], points[inside][new], directions[inside][new]
-        if len(cells):
-            off_arm = self._off_arm(points, joints)
-            cells, points, directions = cells[off_arm], points[off_arm], directions[off_arm]
-        if len(cells):
-            others = np.concatenate([points, self.points])
-            close = np.linalg.norm(points[:, None] - others[None], axis=-1) < SUPPORT_RADIUS_M
-            supported = close.sum(axis=1) >= 2  # (itself and another)
-            cells, points, directions = cells[supported], points[supported], directions[supported]
-        if len(cells) and self.extrude_m > 0:
-            cells = np.concatenate([cells, self._behind(points, directions, joints)])
+        index, cells = index[new], cells[new]
+        if len(index):
+            off_arm = self._off_arm(points[index], joints)
+            index, cells = index[off_arm], cells[off_arm]
+        if len(index):
+            others = np.concatenate([points[index], self.points])
+            gaps = np.linalg.norm(points[index, None] - others[None], axis=-1)
+            supported = (gaps < SUPPORT_RADIUS_M).sum(axis=1) >= 2  # (itself and another)
+            index, cells = index[supported], cells[supported]
+        if len(index) == 0:
+            return cells
+        if self.extrude_m > 0:
+            behind = self._behind(points[index], directions[index], joints)
+            cells = np.concatenate([cells, behind])
         return np.unique(cells)
 
     def _off_arm(self, points: np.ndarray, joints: np.ndarray) -> np.ndarray:
-        """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints`."""
+        """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (squared
+        distances in float32: the test runs on every pixel the arm's motion changed)."""
         starts, ends = self.arm.segments(joints)
         near = self.arm.near(points, starts, ends, ARM_FILTER_M)
-        arm = _segment_distance(points[near], starts, ends) - self.arm.radii[None]
         off_arm = np.ones(len(points), bool)
-        off_arm[near[arm.min(axis=1) <= ARM_FILTER_M]] = False
+        points = points[near].astype(np.float32)
+        starts, axis = starts.astype(np.float32), (ends - starts).astype(np.float32)
+        length2 = np.maximum((axis * axis).sum(1), 1e-12)
+        along = points @ axis.T - (starts * axis).sum(1)
+        t = np.clip(along / length2, 0.0, 1.0)
+        squared = (points * points).sum(1)[:, None] - 2.0 * points @ starts.T
+        squared += (starts * starts).sum(1) - 2.0 * t * along + t * t * length2
+        reach2 = ((self.arm.radii + ARM_FILTER_M) ** 2).astype(np.float32)
+        off_arm[near[(squared <= reach2).any(axis=1)]] = False
         return off_arm
 
     def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
@@ -297,19 +327,183 @@ class DepthOccupancy:
         return self.points
 
 
+class ArmShadow:
+    """The space the arm has hidden from every camera since the episode began (beyond the
+    paper's method, like the rest of this module).
+
+    A camera sees nothing behind the arm: an obstacle right behind the gripper leaves no
+    pixel, and a policy from one view walks the gripper into it (most of the depth shield's
+    collisions with one view). Per pixel, the deepest depth seen in the episode bounds the
+    space seen free along its ray (the scene stands still; only the arm moves, in front of
+    it). A point is *hidden* when every view that frames it shows something nearer, and in
+    one of them that nearer surface is the arm's, that is, the arm has been in front of it
+    ever since the episode began. Space the arm itself has filled is free. `hidden` tells
+    which configurations would put the distal geoms (`SHADOW_GEOMS`) into hidden space; the
+    depth shield refuses such steps (`DepthClearance`), so the arm moves into what it hid
+    only once a camera has seen it.
+    """
+
+    def __init__(self, occupancy: DepthOccupancy, near_m: float = 0.05) -> None:
+        self.occupancy = occupancy
+        self.near_m = near_m
+        arm = occupancy.arm
+        scene = arm.scene
+        views, height, width = occupancy.shape
+        cameras = scene.camera_ids[:views]
+        self.rotations = scene.data.cam_xmat[cameras].reshape(-1, 3, 3).copy()
+        self.positions = scene.data.cam_xpos[cameras].copy()
+        self.intrinsics = np.array(
+            [camera_intrinsics(scene.model, c, height, width) for c in cameras]
+        )  # V, (fx, fy, cx, cy)
+        names = [scene.model.geom(int(g)).name for g in arm.geoms]
+        self.geoms = np.array([names.index(name) for name in SHADOW_GEOMS])
+        self._shell = [_capsule_shell(arm.radii[g], arm.half_lengths[g]) for g in self.geoms]
+        self._swept = np.zeros_like(occupancy._grid)
+        self._swept_cells = np.empty(0, np.int64)
+        self.deepest = np.full(views * height * width, -np.inf, np.float32)
+        self.behind_arm = np.zeros(views * height * width, bool)
+
+    def reset(self) -> None:
+        self._swept[self._swept_cells] = False
+        self._swept_cells = np.empty(0, np.int64)
+        self.deepest[:] = -np.inf
+        self.behind_arm[:] = False
+
+    def update(self, images: np.ndarray, joints: np.ndarray) -> None:
+        """Deepen each pixel's seen depth with `images` (taken at `joints`) and mark the space
+        the distal geoms fill as free."""
+        occupancy = self.occupancy
+        depth = uint8_to_depth(np.asarray(images)[:, 3].reshape(-1))
+        deeper = np.flatnonzero(depth > self.deepest)
+        self.deepest[deeper] = depth[deeper]
+        points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
+        self.behind_arm[deeper] = ~occupancy._off_arm(points.astype(np.float64), joints)
+        cells = self._cells_filled(joints)
+        cells = cells[~self._swept[cells]]
+        self._swept[cells] = True
+        self._swept_cells = np.concatenate([self._swept_cells, cells])
+
+    def _cells_filled(self, joints: np.ndarray) -> np.ndarray:
+        """Voxels within a half diagonal of the distal geoms at `joints` (flat indices)."""
+        occupancy = self.occupancy
+        starts, ends = self.occupancy.arm.segments(joints)
+        cells = []
+        for g in self.geoms:
+            reach = occupancy.arm.radii[g] + 0.5 * np.sqrt(3.0) * VOXEL_M
+            low = np.minimum(starts[g], ends[g]) - reach
+            high = np.maximum(starts[g], ends[g]) + reach
+            first = np.floor((low - GRID_LOW_M) / VOXEL_M).astype(np.int64)
+            last = np.floor((high - GRID_LOW_M) / VOXEL_M).astype(np.int64)
+            first, last = np.maximum(first, 0), np.minimum(last, occupancy._dims - 1)
+            axes = [np.arange(a, b + 1) for a, b in zip(first, last, strict=True)]
+            voxels = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+            centres = GRID_LOW_M + (voxels + 0.5) * VOXEL_M
+            near = _segment_distance(centres, starts[g][None], ends[g][None])[:, 0] <= reach
+            cells.append(voxels[near] @ occupancy._strides)
+        return np.unique(np.concatenate(cells))
+
+    def hidden(self, joints: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
+        """Whether the distal geoms at each of joints (B, 6) reach into hidden space within
+        `near_m` of a point of `obstacle` (P, 3) seen so far: (B,)."""
+        joints = np.atleast_2d(joints)
+        starts, ends = self.occupancy.arm.segments_many(joints)  # B, G, 3
+        points = []
+        for g, shell in zip(self.geoms, self._shell, strict=True):
+            axis = ends[:, g] - starts[:, g]
+            length = np.linalg.norm(axis, axis=1, keepdims=True)
+            frame = _frames_along(axis / np.maximum(length, 1e-12))  # B, 3, 3
+            centre = 0.5 * (starts[:, g] + ends[:, g])
+            points.append(centre[:, None] + np.einsum("bij,pj->bpi", frame, shell))
+        points = np.concatenate(points, axis=1)  # B, P, 3
+        flat = points.reshape(-1, 3)
+        out = np.zeros(len(flat), bool)
+        if len(obstacle) == 0:
+            return out.reshape(points.shape[:2]).any(axis=1)
+        near = self.occupancy.arm.near(obstacle, flat, flat, self.near_m)
+        if len(near):
+            hidden = np.flatnonzero(self.hidden_points(flat))
+            if len(hidden):
+                gap = np.linalg.norm(flat[hidden, None] - obstacle[near][None], axis=-1)
+                out[hidden[gap.min(axis=1) < self.near_m]] = True
+        return out.reshape(points.shape[:2]).any(axis=1)
+
+    def hidden_points(self, points: np.ndarray) -> np.ndarray:
+        """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had the
+        arm in front of them since the episode began (space the hand filled is free)."""
+        occupancy = self.occupancy
+        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+        inside = (voxels >= 0).all(axis=1) & (voxels < occupancy._dims).all(axis=1)
+        filled = np.zeros(len(points), bool)
+        filled[inside] = self._swept[voxels[inside] @ occupancy._strides]
+        views, height, width = occupancy.shape
+        local = (
+            np.einsum("pk,vkj->vpj", points, self.rotations)
+            - np.einsum("vk,vkj->vj", self.positions, self.rotations)[:, None]
+        )  # V, P, 3 in each camera's frame
+        depth = -local[..., 2]
+        fx, fy, cx, cy = (self.intrinsics[:, i, None] for i in range(4))
+        safe = np.maximum(depth, 1e-6)
+        cols = np.floor(cx + fx * local[..., 0] / safe).astype(np.int64)
+        rows = np.floor(cy - fy * local[..., 1] / safe).astype(np.int64)
+        framed = (depth > 0) & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
+        pixel = np.arange(views)[:, None] * height * width + np.where(
+            framed, rows * width + cols, 0
+        )
+        behind = framed & (depth > self.deepest[pixel] + SHADOW_TOLERANCE_M)
+        seen = framed & ~behind
+        return ~filled & ~seen.any(axis=0) & (behind & self.behind_arm[pixel]).any(axis=0)
+
+
+def _capsule_shell(radius: float, half_length: float) -> np.ndarray:
+    """Points (P, 3) on a capsule's surface about `SHADOW_SPACING_M` apart, its axis along z."""
+    rings = max(2, int(np.ceil(2 * half_length / SHADOW_SPACING_M)) + 1)
+    around = max(6, int(np.ceil(2 * np.pi * radius / SHADOW_SPACING_M)))
+    angle = np.arange(around) * 2 * np.pi / around
+    circle = np.stack([radius * np.cos(angle), radius * np.sin(angle)], -1)
+    points = [
+        np.concatenate([circle, np.full((around, 1), z)], 1)
+        for z in np.linspace(-half_length, half_length, rings)
+    ]
+    caps = np.array([[0.0, 0.0, -half_length - radius], [0.0, 0.0, half_length + radius]])
+    return np.concatenate([*points, caps])
+
+
+def _frames_along(axes: np.ndarray) -> np.ndarray:
+    """Rotations (B, 3, 3) whose third column is each unit axis (B, 3)."""
+    helper = np.where(np.abs(axes[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    first = np.cross(axes, helper)
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    second = np.cross(axes, first)
+    return np.stack([first, second, axes], axis=2)
+
+
 class DepthClearance:
     """`clamgen.experiments.shield.choose_action`'s checker on the depth shield's points."""
 
-    def __init__(self, arm: ArmCapsules, margin_m: float) -> None:
+    def __init__(self, arm: ArmCapsules, margin_m: float, shadow: ArmShadow | None = None) -> None:
         self.arm = arm
         self.margin_m = margin_m
+        self.shadow = shadow
         self.points = np.empty((0, 3))
 
-    def clearance(self, joints: np.ndarray) -> float:
-        return self.arm.clearance(joints, self.points, cap=self.margin_m)
+    def clearance(self, joints: np.ndarray, cap: float | None = None) -> float:
+        """The arm's clearance at `joints` to the kept points and the table, capped at `cap`
+        (the margin by default); `HIDDEN_CLEARANCE_M` when it reaches into hidden space."""
+        cap = self.margin_m if cap is None else cap
+        value = self.arm.clearance(joints, self.points, cap=cap)
+        if self.shadow is not None and self.shadow.hidden(joints, self.points)[0]:
+            return min(value, HIDDEN_CLEARANCE_M)
+        return value
 
     def clearances(self, joints: np.ndarray) -> np.ndarray:
-        return self.arm.clearances(joints, self.points, cap=self.margin_m)
+        values = self.arm.clearances(joints, self.points, cap=self.margin_m)
+        if self.shadow is not None:
+            values = np.where(
+                self.shadow.hidden(joints, self.points),
+                np.minimum(values, HIDDEN_CLEARANCE_M),
+                values,
+            )
+        return values
 
     def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
         """`shield.step_clearance`, with a shortcut for the usual step far from everything:
@@ -320,6 +514,9 @@ class DepthClearance:
         theta the joints' summed change: about 3 mm for a typical step; the boxes are widened
         by that bound.)"""
         target = step_target(joints, action)
+        shadow = self.shadow
+        if shadow is not None and shadow.hidden(step_checks(joints, action), self.points).any():
+            return float(self.step_clearances(joints, np.asarray(action)[None])[0])
         theta = float(np.abs(target - joints).sum())
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
         axes = np.stack([*self.arm.segments(joints), *self.arm.segments(target)])  # 4, G, 3
@@ -330,8 +527,9 @@ class DepthClearance:
             # Per geom, the box around its axis at both ends widened by its radius and reach.
             widen = (self.arm.radii + reach)[:, None]
             box_low, box_high = axes.min(axis=0) - widen, axes.max(axis=0) + widen
-            points = self.points[:, None]
-            if ((points > box_low) & (points < box_high)).all(axis=2).any():
+            points = self.points  # those in the boxes' union first: usually few or none
+            points = points[((points > box_low.min(0)) & (points < box_high.max(0))).all(1)]
+            if ((points[:, None] > box_low) & (points[:, None] < box_high)).all(axis=2).any():
                 return float(self.step_clearances(joints, np.asarray(action)[None])[0])
         return self.margin_m
 
@@ -348,7 +546,8 @@ class DepthShield:
 
     `policy`: a `Policy` observing images (and joints and goal); `num_views`, `image_size`:
     its observation's; `extrude_m`: the hidden side of each seen surface is taken as filled
-    this deep (`DepthOccupancy`). Counts `num_shielded` of `num_steps`.
+    this deep (`DepthOccupancy`); `shadow`: the hand keeps out of the space the arm has hidden
+    since the episode began (`ArmShadow`). Counts `num_shielded` of `num_steps`.
     """
 
     def __init__(
@@ -360,6 +559,7 @@ class DepthShield:
         seed: int = 0,
         sliding: bool = True,
         extrude_m: float = 0.0,
+        shadow_m: float | None = None,
     ) -> None:
         from clamgen.experiments.shield import perturbations
 
@@ -368,7 +568,8 @@ class DepthShield:
         self.policy = policy
         arm = ArmCapsules()
         self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm, extrude_m)
-        self.checker = DepthClearance(arm, margin_m)
+        self.shadow = ArmShadow(self.occupancy, shadow_m) if shadow_m is not None else None
+        self.checker = DepthClearance(arm, margin_m, self.shadow)
         self.perturbations = perturbations(seed)
         self.sliding = sliding
         self.num_steps = 0
@@ -380,6 +581,8 @@ class DepthShield:
 
     def reset(self, env: Any | None = None) -> None:
         self.occupancy.reset()
+        if self.shadow is not None:
+            self.shadow.reset()
         self.policy.reset(env)
 
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -389,7 +592,10 @@ class DepthShield:
     def observe(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """Add what `obs` shows to the obstacle map; the arm's joints."""
         self.checker.points = self.occupancy.update(obs)
-        return np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+        joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
+        if self.shadow is not None:
+            self.shadow.update(obs["images"], joints)
+        return joints
 
     def shield(self, joints: np.ndarray, action: np.ndarray) -> np.ndarray:
         """The shield's choice for `action` at `joints` (`shield.choose_action`)."""
