@@ -7,8 +7,8 @@ the same architecture as `residual-2views`), timed interleaved in blocks with th
 that load from other processes affects all alike. The blocked-path issue's aim: under 2 ms a
 step on one core.
 
-The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`)
-are timed along whole blocked-task episodes of their own, recorded first, so that the shield
+The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`,
+and for one view also with `--depth-shadow-m 0.07`) are timed along whole blocked-task episodes of their own, recorded first, so that the shield
 sees a growing obstacle map and steps that need it, as in an evaluation (its cost includes
 the policy's).
 
@@ -44,8 +44,15 @@ POLICIES = (
     ("residual-1view", "residual-1view"),
     REFERENCE,
 )
-SHIELDED = ("residual-3views", "residual-2views", "residual-1view")
 SHIELD_MARGIN_M = 0.01
+SHADOW_M = 0.07
+"""`clamgen eval --depth-shadow-m` as chosen for one view (the arm's shadow near seen surface)."""
+SHIELDED = (
+    ("residual-3views", None),
+    ("residual-2views", None),
+    ("residual-1view", None),
+    ("residual-1view", SHADOW_M),
+)
 NUM_EPISODES = 3
 BLOCK = 50  # calls of one policy before switching to the next
 NUM_OBSERVATIONS = 20
@@ -104,12 +111,14 @@ def main() -> None:
     for label, name in POLICIES:
         policy, _, env_kwargs = load_policy(name)
         loaded[label] = (policy, observations(env_kwargs))
-    for name in SHIELDED:
+    for name, shadow_m in SHIELDED:
         policy, _, env_kwargs = load_policy(name)
         views, size = env_kwargs["num_views"], env_kwargs["image_size"]
-        shielded = DepthShield(policy, views, size, SHIELD_MARGIN_M)
+        shielded = DepthShield(policy, views, size, SHIELD_MARGIN_M, shadow_m=shadow_m)
         replay = Replay(shielded, episodes(shielded, env_kwargs))
-        loaded[f"{name} + depth shield ({SHIELD_MARGIN_M} m)"] = (shielded, replay)
+        label = f"{name} + depth shield ({SHIELD_MARGIN_M} m"
+        label += f", shadow {shadow_m} m)" if shadow_m is not None else ")"
+        loaded[label] = (shielded, replay)
     times: dict[str, list[float]] = {label: [] for label in loaded}
     for start in range(0, args.num_calls, BLOCK):
         for label, (policy, obs) in loaded.items():

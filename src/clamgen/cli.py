@@ -380,6 +380,11 @@ class EvalConfig:
     """With --depth-shield-m: when the policy stops making progress towards the target, plan a
     path on the depth map it has seen with RRT-Connect and follow it
     (`clamgen.experiments.depth_planner`, beyond the paper; needs OMPL)."""
+    depth_shadow_m: float | None = None
+    """With --depth-shield-m: the hand also keeps out of the space the arm has hidden from the
+    cameras since the episode began, where it lies within this distance (m; 0.07 was chosen on
+    1-view validation tasks) of obstacle surface seen so far
+    (`clamgen.experiments.depth_shield.ArmShadow`). Off by default."""
 
 
 TABLE2_ROW_NAMES = {
@@ -440,9 +445,18 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
-    if config.depth_shield_m is not None or config.depth_planner:
+    if (
+        config.depth_shield_m is not None
+        or config.depth_planner
+        or config.depth_shadow_m is not None
+    ):
         policy, source = _with_depth_shield(
-            policy, source, env_kwargs, config.depth_shield_m, config.depth_planner
+            policy,
+            source,
+            env_kwargs,
+            config.depth_shield_m,
+            config.depth_planner,
+            config.depth_shadow_m,
         )
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
@@ -479,18 +493,28 @@ def evaluate_table(config: EvalConfig) -> list:
 
 
 def _with_depth_shield(
-    policy, source: str, env_kwargs: dict, margin_m: float | None, planner: bool = False
+    policy,
+    source: str,
+    env_kwargs: dict,
+    margin_m: float | None,
+    planner: bool = False,
+    shadow_m: float | None = None,
 ):
     """`policy` acting through the depth shield (and with `planner`, planning on the depth map
-    when stuck); SystemExit unless it observes its joints and depth images and, with
-    `planner`, a margin is given."""
+    when stuck; with `shadow_m`, keeping the hand out of the arm's shadow near seen obstacle
+    surface); SystemExit unless it observes its joints and depth images and, with `planner`
+    or `shadow_m`, a margin is given."""
     from importlib.util import find_spec
 
     from clamgen.experiments.depth_planner import DepthShieldPlanner
     from clamgen.experiments.depth_shield import DepthShield
 
     if margin_m is None:
+        if shadow_m is not None:
+            raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
         raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
+    if shadow_m is not None and not 0 < shadow_m < float("inf"):
+        raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")
     views = env_kwargs.get("num_views", 0)
     if not views or env_kwargs.get("obs_mode") != "both":
         raise SystemExit(
@@ -501,10 +525,12 @@ def _with_depth_shield(
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
     wrapper = DepthShieldPlanner if planner else DepthShield
     try:
-        shielded = wrapper(policy, views, env_kwargs["image_size"], margin_m)
+        shielded = wrapper(policy, views, env_kwargs["image_size"], margin_m, shadow_m=shadow_m)
     except ValueError as error:
         raise SystemExit(f"bad --depth-shield-m: {error}") from error
-    source += f" + depth shield ({margin_m} m)" + (" + planner when stuck" if planner else "")
+    source += f" + depth shield ({margin_m} m"
+    source += f", arm's shadow within {shadow_m} m)" if shadow_m is not None else ")"
+    source += " + planner when stuck" if planner else ""
     return shielded, source
 
 
@@ -586,9 +612,18 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
-        if config.depth_shield_m is not None or config.depth_planner:
+        if (
+            config.depth_shield_m is not None
+            or config.depth_planner
+            or config.depth_shadow_m is not None
+        ):
             policy, _ = _with_depth_shield(
-                policy, "", env_kwargs, config.depth_shield_m, config.depth_planner
+                policy,
+                "",
+                env_kwargs,
+                config.depth_shield_m,
+                config.depth_planner,
+                config.depth_shadow_m,
             )
         env_id = _policy_env_id(config.policy)
         if env_id in ENV_IDS:

@@ -59,6 +59,9 @@ class RenderConfig:
     depth_planner: bool = False
     """With --depth-shield-m: plan on the depth map when the policy is stuck, as `clamgen
     eval --depth-planner`."""
+    depth_shadow_m: float | None = None
+    """With --depth-shield-m: keep the hand out of the arm's shadow near seen obstacle surface,
+    as `clamgen eval --depth-shadow-m`."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
