@@ -8,9 +8,9 @@ that load from other processes affects all alike. The blocked-path issue's aim: 
 step on one core.
 
 The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`,
-and for one view also with `--depth-shadow-m 0.07`) are timed along whole blocked-task episodes of their own, recorded first, so that the shield
-sees a growing obstacle map and steps that need it, as in an evaluation (its cost includes
-the policy's).
+and for one view also with `--depth-shadow-m 0.07`) are timed along whole blocked-task
+episodes of their own, recorded first, so that the shield sees a growing obstacle map and
+steps that need it, as in an evaluation (its cost includes the policy's).
 
     python benchmarks/act_latency.py [--num-calls 400]
 

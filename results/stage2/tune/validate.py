@@ -122,6 +122,12 @@ def main() -> None:
         "(depth_shield.ArmShadow)",
     )
     parser.add_argument(
+        "--shadow-behind-surfaces",
+        action="store_true",
+        help="with --shadow: space behind any seen surface counts as hidden, not only "
+        "behind the arm",
+    )
+    parser.add_argument(
         "--no-slide",
         action="store_true",
         help="the depth shield's alternatives leave out the slid action",
@@ -176,12 +182,14 @@ def main() -> None:
                 extrude_m=args.extrude,
                 plan_margin_m=args.plan_margin,
                 shadow_m=args.shadow,
+                shadow_behind_surfaces=args.shadow_behind_surfaces,
             )
             label += f" (depth shield {args.depth_shield} m + planner when stuck"
             if args.plan_margin is not None:
                 label += f" keeping {args.plan_margin} m"
             label += f", extruded {args.extrude} m" if args.extrude else ""
-            label += f", arm's shadow within {args.shadow} m kept out)" if args.shadow else ")"
+            label += f", arm's shadow within {args.shadow} m kept out" if args.shadow else ""
+            label += " (behind any surface))" if args.shadow_behind_surfaces else ")"
         elif args.depth_shield is not None:
             from clamgen.experiments.depth_shield import DepthShield
 
@@ -193,10 +201,12 @@ def main() -> None:
                 sliding=not args.no_slide,
                 extrude_m=args.extrude,
                 shadow_m=args.shadow,
+                shadow_behind_surfaces=args.shadow_behind_surfaces,
             )
             label += f" (depth shield {args.depth_shield} m" + ("" if args.no_slide else ", slide")
             label += f", extruded {args.extrude} m" if args.extrude else ""
-            label += f", arm's shadow within {args.shadow} m kept out)" if args.shadow else ")"
+            label += f", arm's shadow within {args.shadow} m kept out" if args.shadow else ""
+            label += " (behind any surface))" if args.shadow_behind_surfaces else ")"
         if args.clearance:
             label += f" [scored with {args.clearance} m clearance]"
             env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}

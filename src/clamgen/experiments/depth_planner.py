@@ -55,9 +55,17 @@ class DepthShieldPlanner(DepthShield):
         extrude_m: float = 0.0,
         plan_margin_m: float | None = None,
         shadow_m: float | None = None,
+        shadow_behind_surfaces: bool = False,
     ) -> None:
         super().__init__(
-            policy, num_views, image_size, margin_m, seed, extrude_m=extrude_m, shadow_m=shadow_m
+            policy,
+            num_views,
+            image_size,
+            margin_m,
+            seed,
+            extrude_m=extrude_m,
+            shadow_m=shadow_m,
+            shadow_behind_surfaces=shadow_behind_surfaces,
         )
         self.plan_margin_m = margin_m if plan_margin_m is None else plan_margin_m
         if not 0 <= self.plan_margin_m < float("inf"):

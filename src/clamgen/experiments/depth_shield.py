@@ -129,7 +129,7 @@ class ArmCapsules:
         """(starts, ends), each (B, G, 3), of the geoms' axes at joints (B, 6), by the
         analytic kinematics (batched)."""
         frames = forward_kinematics(np.asarray(joints, np.float64))[:, self._frame]  # B, G
-        ends = np.einsum("bgij,gkj->bgki", frames[..., :3, :3], self._local)
+        ends = self._local[None] @ frames[..., :3, :3].transpose(0, 1, 3, 2)  # B, G, 2, 3
         ends = ends + frames[..., None, :3, 3]
         return ends[:, :, 0], ends[:, :, 1]
 
@@ -343,9 +343,12 @@ class ArmShadow:
     only once a camera has seen it.
     """
 
-    def __init__(self, occupancy: DepthOccupancy, near_m: float = 0.05) -> None:
+    def __init__(
+        self, occupancy: DepthOccupancy, near_m: float = 0.05, behind_surfaces: bool = False
+    ) -> None:
         self.occupancy = occupancy
         self.near_m = near_m
+        self.behind_surfaces = behind_surfaces
         arm = occupancy.arm
         scene = arm.scene
         views, height, width = occupancy.shape
@@ -357,89 +360,109 @@ class ArmShadow:
         )  # V, (fx, fy, cx, cy)
         names = [scene.model.geom(int(g)).name for g in arm.geoms]
         self.geoms = np.array([names.index(name) for name in SHADOW_GEOMS])
-        self._shell = [_capsule_shell(arm.radii[g], arm.half_lengths[g]) for g in self.geoms]
-        self._swept = np.zeros_like(occupancy._grid)
-        self._swept_cells = np.empty(0, np.int64)
+        # The geoms' surface points, fixed in the DH frames of their links (as ArmCapsules
+        # keeps its axes), so that one batched kinematics call places them.
+        starts, ends = arm.segments(ur5.HOME_JOINTS)
+        shells = []
+        for g in self.geoms:
+            shell = _capsule_shell(arm.radii[g], arm.half_lengths[g])
+            axis = (ends[g] - starts[g]) / np.linalg.norm(ends[g] - starts[g])
+            world = 0.5 * (starts[g] + ends[g]) + shell @ _frames_along(axis[None])[0].T
+            inverse = np.linalg.inv(forward_kinematics(ur5.HOME_JOINTS)[arm._frame[g]])
+            shells.append(world @ inverse[:3, :3].T + inverse[:3, 3])
+        self._shell = np.concatenate(shells)  # P, 3
+        self._shell_frame = np.concatenate(
+            [
+                np.full(len(shell), arm._frame[g])
+                for g, shell in zip(self.geoms, shells, strict=True)
+            ]
+        )
+        self._reach = arm.radii[self.geoms] + 0.5 * np.sqrt(3.0) * VOXEL_M
         self.deepest = np.full(views * height * width, -np.inf, np.float32)
         self.behind_arm = np.zeros(views * height * width, bool)
+        self.reset()
 
     def reset(self) -> None:
-        self._swept[self._swept_cells] = False
-        self._swept_cells = np.empty(0, np.int64)
         self.deepest[:] = -np.inf
         self.behind_arm[:] = False
+        # The distal geoms' axes at every configuration seen this episode: the space they
+        # filled (voxels whose centre lies within a half diagonal of a geom) is free.
+        self._filled_starts: list[np.ndarray] = []
+        self._filled_ends: list[np.ndarray] = []
 
     def update(self, images: np.ndarray, joints: np.ndarray) -> None:
-        """Deepen each pixel's seen depth with `images` (taken at `joints`) and mark the space
+        """Deepen each pixel's seen depth with `images` (taken at `joints`) and take the space
         the distal geoms fill as free."""
         occupancy = self.occupancy
         depth = uint8_to_depth(np.asarray(images)[:, 3].reshape(-1))
         deeper = np.flatnonzero(depth > self.deepest)
         self.deepest[deeper] = depth[deeper]
         points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
-        self.behind_arm[deeper] = ~occupancy._off_arm(points.astype(np.float64), joints)
-        cells = self._cells_filled(joints)
-        cells = cells[~self._swept[cells]]
-        self._swept[cells] = True
-        self._swept_cells = np.concatenate([self._swept_cells, cells])
+        if self.behind_surfaces:  # any surface in front hides what lies behind it
+            self.behind_arm[deeper] = depth[deeper] < FAR_CLIP_M
+        else:
+            self.behind_arm[deeper] = ~occupancy._off_arm(points.astype(np.float64), joints)
+        starts, ends = occupancy.arm.segments(joints)
+        self._filled_starts.append(starts[self.geoms])
+        self._filled_ends.append(ends[self.geoms])
 
-    def _cells_filled(self, joints: np.ndarray) -> np.ndarray:
-        """Voxels within a half diagonal of the distal geoms at `joints` (flat indices)."""
+    def _filled(self, points: np.ndarray) -> np.ndarray:
+        """Which of `points` lie in a voxel the distal geoms filled at a configuration seen
+        (its centre within a half diagonal of a geom's surface)."""
         occupancy = self.occupancy
-        starts, ends = self.occupancy.arm.segments(joints)
-        cells = []
-        for g in self.geoms:
-            reach = occupancy.arm.radii[g] + 0.5 * np.sqrt(3.0) * VOXEL_M
-            low = np.minimum(starts[g], ends[g]) - reach
-            high = np.maximum(starts[g], ends[g]) + reach
-            first = np.floor((low - GRID_LOW_M) / VOXEL_M).astype(np.int64)
-            last = np.floor((high - GRID_LOW_M) / VOXEL_M).astype(np.int64)
-            first, last = np.maximum(first, 0), np.minimum(last, occupancy._dims - 1)
-            axes = [np.arange(a, b + 1) for a, b in zip(first, last, strict=True)]
-            voxels = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-            centres = GRID_LOW_M + (voxels + 0.5) * VOXEL_M
-            near = _segment_distance(centres, starts[g][None], ends[g][None])[:, 0] <= reach
-            cells.append(voxels[near] @ occupancy._strides)
-        return np.unique(np.concatenate(cells))
+        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+        inside = (voxels >= 0).all(axis=1) & (voxels < occupancy._dims).all(axis=1)
+        out = np.zeros(len(points), bool)
+        if not self._filled_starts or not inside.any():
+            return out
+        centres = GRID_LOW_M + (voxels[inside] + 0.5) * VOXEL_M
+        starts, ends = np.concatenate(self._filled_starts), np.concatenate(self._filled_ends)
+        reach = np.tile(self._reach, len(self._filled_starts))
+        out[inside] = (_segment_distance(centres, starts, ends) <= reach).any(axis=1)
+        return out
 
     def hidden(self, joints: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
         """Whether the distal geoms at each of joints (B, 6) reach into hidden space within
         `near_m` of a point of `obstacle` (P, 3) seen so far: (B,)."""
         joints = np.atleast_2d(joints)
-        starts, ends = self.occupancy.arm.segments_many(joints)  # B, G, 3
-        points = []
-        for g, shell in zip(self.geoms, self._shell, strict=True):
-            axis = ends[:, g] - starts[:, g]
-            length = np.linalg.norm(axis, axis=1, keepdims=True)
-            frame = _frames_along(axis / np.maximum(length, 1e-12))  # B, 3, 3
-            centre = 0.5 * (starts[:, g] + ends[:, g])
-            points.append(centre[:, None] + np.einsum("bij,pj->bpi", frame, shell))
-        points = np.concatenate(points, axis=1)  # B, P, 3
+        frames = forward_kinematics(np.asarray(joints, np.float64))
+        points = np.empty((len(joints), len(self._shell), 3))
+        for frame in np.unique(self._shell_frame):  # (the hand's geoms share one link)
+            mine = self._shell_frame == frame
+            rotation, origin = frames[:, frame, :3, :3], frames[:, frame, None, :3, 3]
+            points[:, mine] = self._shell[mine] @ rotation.transpose(0, 2, 1) + origin
         flat = points.reshape(-1, 3)
         out = np.zeros(len(flat), bool)
-        if len(obstacle) == 0:
-            return out.reshape(points.shape[:2]).any(axis=1)
-        near = self.occupancy.arm.near(obstacle, flat, flat, self.near_m)
-        if len(near):
-            hidden = np.flatnonzero(self.hidden_points(flat))
-            if len(hidden):
-                gap = np.linalg.norm(flat[hidden, None] - obstacle[near][None], axis=-1)
-                out[hidden[gap.min(axis=1) < self.near_m]] = True
+        reach = self.near_m + SHADOW_SPACING_M
+        low, high = flat.min(axis=0) - reach, flat.max(axis=0) + reach
+        obstacle = obstacle[((obstacle > low) & (obstacle < high)).all(axis=1)]
+        if len(obstacle):
+            # The cheap tests first: behind the arm in the views, then near seen surface,
+            # then not filled by the hand before.
+            candidates = np.flatnonzero(self._behind_the_arm(flat))
+            if len(candidates):
+                gap2 = (
+                    (flat[candidates] ** 2).sum(1)[:, None]
+                    - 2.0 * flat[candidates] @ obstacle.T
+                    + (obstacle**2).sum(1)
+                )
+                candidates = candidates[gap2.min(axis=1) < self.near_m**2]
+            if len(candidates):
+                out[candidates[~self._filled(flat[candidates])]] = True
         return out.reshape(points.shape[:2]).any(axis=1)
 
     def hidden_points(self, points: np.ndarray) -> np.ndarray:
         """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had the
         arm in front of them since the episode began (space the hand filled is free)."""
+        hidden = self._behind_the_arm(points)
+        hidden[hidden] = ~self._filled(points[hidden])
+        return hidden
+
+    def _behind_the_arm(self, points: np.ndarray) -> np.ndarray:
+        """Which of `points` no view has seen free and one has seen only the arm in front of."""
         occupancy = self.occupancy
-        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        inside = (voxels >= 0).all(axis=1) & (voxels < occupancy._dims).all(axis=1)
-        filled = np.zeros(len(points), bool)
-        filled[inside] = self._swept[voxels[inside] @ occupancy._strides]
         views, height, width = occupancy.shape
-        local = (
-            np.einsum("pk,vkj->vpj", points, self.rotations)
-            - np.einsum("vk,vkj->vj", self.positions, self.rotations)[:, None]
-        )  # V, P, 3 in each camera's frame
+        local = (points - self.positions[:, None]) @ self.rotations  # V, P, 3 in each camera's
         depth = -local[..., 2]
         fx, fy, cx, cy = (self.intrinsics[:, i, None] for i in range(4))
         safe = np.maximum(depth, 1e-6)
@@ -451,7 +474,7 @@ class ArmShadow:
         )
         behind = framed & (depth > self.deepest[pixel] + SHADOW_TOLERANCE_M)
         seen = framed & ~behind
-        return ~filled & ~seen.any(axis=0) & (behind & self.behind_arm[pixel]).any(axis=0)
+        return ~seen.any(axis=0) & (behind & self.behind_arm[pixel]).any(axis=0)
 
 
 def _capsule_shell(radius: float, half_length: float) -> np.ndarray:
@@ -560,6 +583,7 @@ class DepthShield:
         sliding: bool = True,
         extrude_m: float = 0.0,
         shadow_m: float | None = None,
+        shadow_behind_surfaces: bool = False,
     ) -> None:
         from clamgen.experiments.shield import perturbations
 
@@ -568,7 +592,9 @@ class DepthShield:
         self.policy = policy
         arm = ArmCapsules()
         self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm, extrude_m)
-        self.shadow = ArmShadow(self.occupancy, shadow_m) if shadow_m is not None else None
+        self.shadow = None
+        if shadow_m is not None:
+            self.shadow = ArmShadow(self.occupancy, shadow_m, shadow_behind_surfaces)
         self.checker = DepthClearance(arm, margin_m, self.shadow)
         self.perturbations = perturbations(seed)
         self.sliding = sliding
