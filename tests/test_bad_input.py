@@ -265,6 +265,18 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         "0",
     )
     assert "--depth-shadow-m must be a number > 0, got 0.0" in message
+    message = refused(
+        workdir,
+        "eval",
+        "--table",
+        "2",
+        "--policy",
+        "residual-1view",
+        "--depth-shield-m",
+        "0.01",
+        "--depth-shadow-behind-surfaces",
+    )
+    assert "--depth-shadow-behind-surfaces needs --depth-shadow-m" in message
 
 
 def test_render_depth_shield_needs_a_vision_residual_and_the_planner_a_margin(workdir):

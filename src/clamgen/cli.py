@@ -385,6 +385,9 @@ class EvalConfig:
     cameras since the episode began, where it lies within this distance (m; 0.07 was chosen on
     1-view validation tasks) of obstacle surface seen so far
     (`clamgen.experiments.depth_shield.ArmShadow`). Off by default."""
+    depth_shadow_behind_surfaces: bool = False
+    """With --depth-shadow-m: space hidden behind any surface the cameras see (obstacles'
+    unseen sides too), not only behind the arm, counts as hidden."""
 
 
 TABLE2_ROW_NAMES = {
@@ -449,6 +452,7 @@ def evaluate_table(config: EvalConfig) -> list:
         config.depth_shield_m is not None
         or config.depth_planner
         or config.depth_shadow_m is not None
+        or config.depth_shadow_behind_surfaces
     ):
         policy, source = _with_depth_shield(
             policy,
@@ -457,6 +461,7 @@ def evaluate_table(config: EvalConfig) -> list:
             config.depth_shield_m,
             config.depth_planner,
             config.depth_shadow_m,
+            config.depth_shadow_behind_surfaces,
         )
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
@@ -499,22 +504,25 @@ def _with_depth_shield(
     margin_m: float | None,
     planner: bool = False,
     shadow_m: float | None = None,
+    behind_surfaces: bool = False,
 ):
     """`policy` acting through the depth shield (and with `planner`, planning on the depth map
     when stuck; with `shadow_m`, keeping the hand out of the arm's shadow near seen obstacle
-    surface); SystemExit unless it observes its joints and depth images and, with `planner`
-    or `shadow_m`, a margin is given."""
+    surface, or with `behind_surfaces` out of any surface's); SystemExit unless it observes
+    its joints and depth images and, with `planner` or `shadow_m`, a margin is given."""
     from importlib.util import find_spec
 
     from clamgen.experiments.depth_planner import DepthShieldPlanner
     from clamgen.experiments.depth_shield import DepthShield
 
     if margin_m is None:
-        if shadow_m is not None:
+        if shadow_m is not None or behind_surfaces:
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
         raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     if shadow_m is not None and not 0 < shadow_m < float("inf"):
         raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")
+    if behind_surfaces and shadow_m is None:
+        raise SystemExit("--depth-shadow-behind-surfaces needs --depth-shadow-m")
     views = env_kwargs.get("num_views", 0)
     if not views or env_kwargs.get("obs_mode") != "both":
         raise SystemExit(
@@ -525,11 +533,20 @@ def _with_depth_shield(
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
     wrapper = DepthShieldPlanner if planner else DepthShield
     try:
-        shielded = wrapper(policy, views, env_kwargs["image_size"], margin_m, shadow_m=shadow_m)
+        shielded = wrapper(
+            policy,
+            views,
+            env_kwargs["image_size"],
+            margin_m,
+            shadow_m=shadow_m,
+            shadow_behind_surfaces=behind_surfaces,
+        )
     except ValueError as error:
         raise SystemExit(f"bad --depth-shield-m: {error}") from error
     source += f" + depth shield ({margin_m} m"
-    source += f", arm's shadow within {shadow_m} m)" if shadow_m is not None else ")"
+    if shadow_m is not None:
+        source += f", {'any surface' if behind_surfaces else 'arm'}'s shadow within {shadow_m} m"
+    source += ")"
     source += " + planner when stuck" if planner else ""
     return shielded, source
 
@@ -616,6 +633,7 @@ def render(config) -> dict:
             config.depth_shield_m is not None
             or config.depth_planner
             or config.depth_shadow_m is not None
+            or config.depth_shadow_behind_surfaces
         ):
             policy, _ = _with_depth_shield(
                 policy,
@@ -624,6 +642,7 @@ def render(config) -> dict:
                 config.depth_shield_m,
                 config.depth_planner,
                 config.depth_shadow_m,
+                config.depth_shadow_behind_surfaces,
             )
         env_id = _policy_env_id(config.policy)
         if env_id in ENV_IDS:

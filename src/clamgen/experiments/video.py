@@ -62,6 +62,9 @@ class RenderConfig:
     depth_shadow_m: float | None = None
     """With --depth-shield-m: keep the hand out of the arm's shadow near seen obstacle surface,
     as `clamgen eval --depth-shadow-m`."""
+    depth_shadow_behind_surfaces: bool = False
+    """With --depth-shadow-m: behind any seen surface, as `clamgen eval
+    --depth-shadow-behind-surfaces`."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
