@@ -8,9 +8,10 @@ that load from other processes affects all alike. The blocked-path issue's aim: 
 step on one core.
 
 The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`,
-and for one view also with `--depth-shadow-m 0.07`) are timed along whole blocked-task
-episodes of their own, recorded first, so that the shield sees a growing obstacle map and
-steps that need it, as in an evaluation (its cost includes the policy's).
+and for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`) are timed
+along whole blocked-task episodes of their own, recorded first, so that the shield sees a
+growing obstacle map and steps that need it, as in an evaluation (its cost includes the
+policy's).
 
     python benchmarks/act_latency.py [--num-calls 400]
 
@@ -45,8 +46,9 @@ POLICIES = (
     REFERENCE,
 )
 SHIELD_MARGIN_M = 0.01
-SHADOW_M = 0.07
-"""`clamgen eval --depth-shadow-m` as chosen for one view (the arm's shadow near seen surface)."""
+SHADOW_M = 0.05
+"""`clamgen eval --depth-shadow-m 0.05 --depth-shadow-behind-surfaces` as chosen for one view
+(unseen space behind seen surfaces, near them, kept out of)."""
 SHIELDED = (
     ("residual-3views", None),
     ("residual-2views", None),
@@ -114,7 +116,9 @@ def main() -> None:
     for name, shadow_m in SHIELDED:
         policy, _, env_kwargs = load_policy(name)
         views, size = env_kwargs["num_views"], env_kwargs["image_size"]
-        shielded = DepthShield(policy, views, size, SHIELD_MARGIN_M, shadow_m=shadow_m)
+        shielded = DepthShield(
+            policy, views, size, SHIELD_MARGIN_M, shadow_m=shadow_m, shadow_behind_surfaces=True
+        )
         replay = Replay(shielded, episodes(shielded, env_kwargs))
         label = f"{name} + depth shield ({SHIELD_MARGIN_M} m"
         label += f", shadow {shadow_m} m)" if shadow_m is not None else ")"
