@@ -537,15 +537,22 @@ class DepthClearance:
         theta the joints' summed change: about 3 mm for a typical step; the boxes are widened
         by that bound.)"""
         target = step_target(joints, action)
-        shadow = self.shadow
-        if shadow is not None and shadow.hidden(step_checks(joints, action), self.points).any():
-            return float(self.step_clearances(joints, np.asarray(action)[None])[0])
         theta = float(np.abs(target - joints).sum())
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
         axes = np.stack([*self.arm.segments(joints), *self.arm.segments(target)])  # 4, G, 3
         lowest = axes[:, :, 2].min(axis=0) - self.arm.radii
         if lowest[self.arm.touch_table].min() < C.TABLE_TOP_Z_M + reach:
             return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+        if len(self.points) and self.shadow is not None:
+            # The hand reaches into hidden space only near a kept point: within `near_m` of
+            # its surface along the step.
+            hand = self.shadow.geoms
+            widen = self.arm.radii[hand] + self.shadow.near_m + reach
+            low = (axes[:, hand].min(axis=0) - widen[:, None]).min(axis=0)
+            high = (axes[:, hand].max(axis=0) + widen[:, None]).max(axis=0)
+            if ((self.points > low) & (self.points < high)).all(axis=1).any():
+                if self.shadow.hidden(step_checks(joints, action), self.points).any():
+                    return float(self.step_clearances(joints, np.asarray(action)[None])[0])
         if len(self.points):
             # Per geom, the box around its axis at both ends widened by its radius and reach.
             widen = (self.arm.radii + reach)[:, None]

@@ -41,8 +41,10 @@ from clamgen.experiments.tables import (
     table2_markdown,
 )
 
-# Columns of a family figure's legend (row names are long).
+# Columns of a family figure's legend (row names are long), and about how many characters of
+# the legend's 8-point text fit across the 18-inch figure.
 LEGEND_COLUMNS = 3
+LEGEND_CHARACTERS = 300
 CURVE_METRIC = "eval/success_rate"
 # Task families, one figure and one aggregate table each; conditions are what a run's score
 # is split over (Table 1: the target speeds; Table 2: one family each).
@@ -518,12 +520,13 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
     profile_ax.set_ylim(-0.02, 1.02)
     profile_ax.grid(alpha=0.3)
     handles = [plt.Line2D([], [], color=colours[r], lw=3) for r in result.rows]
-    # Three columns: four of the longest row names overflow the figure's width.
-    columns = min(LEGEND_COLUMNS, n)
+    # As many columns (at most three) as the longest row name lets fit in the figure's width.
+    fitting = LEGEND_CHARACTERS // (max(len(r) for r in result.rows) + 8)
+    columns = max(1, min(LEGEND_COLUMNS, n, fitting))
     fig.legend(handles, result.rows, loc="outside lower center", ncol=columns, fontsize=8,
                frameon=False)  # fmt: skip
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    fig.savefig(out, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return out
 
