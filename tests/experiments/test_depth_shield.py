@@ -151,3 +151,26 @@ def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
     env.close()
     shadow.update(images, aside)
     assert not shadow.hidden_points(behind[None])[0]
+
+
+def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
+    from clamgen.experiments.depth_shield import ArmShadow
+
+    env = ReachEnv(
+        num_obstacles=2, task_family="blocked", obs_mode="both", num_views=1, image_size=SIZE
+    )
+    obs, _ = env.reset(seed=TEST_SEEDS.start + 1)
+    env.close()
+    joints = np.asarray(obs["observation"], np.float64)[:6]
+    occupancy = DepthOccupancy(1, SIZE, SIZE)
+    surface = occupancy.update(obs)
+    assert len(surface) > 0
+    eye = occupancy.origins[0].astype(np.float64)
+    rays = (surface - eye) / np.linalg.norm(surface - eye, axis=1, keepdims=True)
+    far_side = surface + 0.05 * rays  # 5 cm behind the seen surface, along the camera's ray
+    arm_only = ArmShadow(occupancy, near_m=0.05)
+    anything = ArmShadow(occupancy, near_m=0.05, behind_surfaces=True)
+    for shadow in (arm_only, anything):
+        shadow.update(obs["images"], joints)
+    assert anything.hidden_points(far_side).mean() > 0.9
+    assert arm_only.hidden_points(far_side).mean() < 0.1

@@ -338,14 +338,19 @@ class ArmShadow:
     it). A point is *hidden* when every view that frames it shows something nearer, and in
     one of them that nearer surface is the arm's, that is, the arm has been in front of it
     ever since the episode began. Space the arm itself has filled is free. `hidden` tells
-    which configurations would put the distal geoms (`SHADOW_GEOMS`) into hidden space; the
-    depth shield refuses such steps (`DepthClearance`), so the arm moves into what it hid
-    only once a camera has seen it.
+    which configurations would put the distal geoms (`SHADOW_GEOMS`) into hidden space within
+    `near_m` of obstacle surface seen so far; the depth shield refuses such steps
+    (`DepthClearance`), so the hand moves into what it hid only once a camera has seen it.
+    With `behind_surfaces`, any surface seen hides what lies behind it (the far sides of
+    obstacles too), not only the arm. (`hides`: per pixel, whether the deepest surface seen
+    there hides the space behind it.)
     """
 
     def __init__(
         self, occupancy: DepthOccupancy, near_m: float = 0.05, behind_surfaces: bool = False
     ) -> None:
+        if not 0 < near_m < float("inf"):
+            raise ValueError(f"near_m must be a number > 0, got {near_m}")
         self.occupancy = occupancy
         self.near_m = near_m
         self.behind_surfaces = behind_surfaces
@@ -379,12 +384,12 @@ class ArmShadow:
         )
         self._reach = arm.radii[self.geoms] + 0.5 * np.sqrt(3.0) * VOXEL_M
         self.deepest = np.full(views * height * width, -np.inf, np.float32)
-        self.behind_arm = np.zeros(views * height * width, bool)
+        self.hides = np.zeros(views * height * width, bool)
         self.reset()
 
     def reset(self) -> None:
         self.deepest[:] = -np.inf
-        self.behind_arm[:] = False
+        self.hides[:] = False
         # The distal geoms' axes at every configuration seen this episode: the space they
         # filled (voxels whose centre lies within a half diagonal of a geom) is free.
         self._filled_starts: list[np.ndarray] = []
@@ -397,11 +402,11 @@ class ArmShadow:
         depth = uint8_to_depth(np.asarray(images)[:, 3].reshape(-1))
         deeper = np.flatnonzero(depth > self.deepest)
         self.deepest[deeper] = depth[deeper]
-        points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
-        if self.behind_surfaces:  # any surface in front hides what lies behind it
-            self.behind_arm[deeper] = depth[deeper] < FAR_CLIP_M
-        else:
-            self.behind_arm[deeper] = ~occupancy._off_arm(points.astype(np.float64), joints)
+        if self.behind_surfaces:  # any surface seen hides what lies behind it
+            self.hides[deeper] = depth[deeper] < FAR_CLIP_M
+        else:  # only the arm does
+            points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
+            self.hides[deeper] = ~occupancy._off_arm(points.astype(np.float64), joints)
         starts, ends = occupancy.arm.segments(joints)
         self._filled_starts.append(starts[self.geoms])
         self._filled_ends.append(ends[self.geoms])
@@ -439,7 +444,7 @@ class ArmShadow:
         if len(obstacle):
             # The cheap tests first: behind the arm in the views, then near seen surface,
             # then not filled by the hand before.
-            candidates = np.flatnonzero(self._behind_the_arm(flat))
+            candidates = np.flatnonzero(self._behind_hiding_surface(flat))
             if len(candidates):
                 gap2 = (
                     (flat[candidates] ** 2).sum(1)[:, None]
@@ -454,12 +459,13 @@ class ArmShadow:
     def hidden_points(self, points: np.ndarray) -> np.ndarray:
         """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had the
         arm in front of them since the episode began (space the hand filled is free)."""
-        hidden = self._behind_the_arm(points)
+        hidden = self._behind_hiding_surface(points)
         hidden[hidden] = ~self._filled(points[hidden])
         return hidden
 
-    def _behind_the_arm(self, points: np.ndarray) -> np.ndarray:
-        """Which of `points` no view has seen free and one has seen only the arm in front of."""
+    def _behind_hiding_surface(self, points: np.ndarray) -> np.ndarray:
+        """Which of `points` no view has seen free and one has seen only a hiding surface
+        (the arm's, or with `behind_surfaces` any) in front of."""
         occupancy = self.occupancy
         views, height, width = occupancy.shape
         local = (points - self.positions[:, None]) @ self.rotations  # V, P, 3 in each camera's
@@ -474,7 +480,7 @@ class ArmShadow:
         )
         behind = framed & (depth > self.deepest[pixel] + SHADOW_TOLERANCE_M)
         seen = framed & ~behind
-        return ~seen.any(axis=0) & (behind & self.behind_arm[pixel]).any(axis=0)
+        return ~seen.any(axis=0) & (behind & self.hides[pixel]).any(axis=0)
 
 
 def _capsule_shell(radius: float, half_length: float) -> np.ndarray:
