@@ -442,8 +442,8 @@ class ArmShadow:
         low, high = flat.min(axis=0) - reach, flat.max(axis=0) + reach
         obstacle = obstacle[((obstacle > low) & (obstacle < high)).all(axis=1)]
         if len(obstacle):
-            # The cheap tests first: behind the arm in the views, then near seen surface,
-            # then not filled by the hand before.
+            # The cheap tests first: behind a hiding surface in the views, then near seen
+            # obstacle surface, then not filled by the hand before.
             candidates = np.flatnonzero(self._behind_hiding_surface(flat))
             if len(candidates):
                 gap2 = (
@@ -457,8 +457,9 @@ class ArmShadow:
         return out.reshape(points.shape[:2]).any(axis=1)
 
     def hidden_points(self, points: np.ndarray) -> np.ndarray:
-        """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had the
-        arm in front of them since the episode began (space the hand filled is free)."""
+        """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had a
+        hiding surface (the arm, or with `behind_surfaces` any) in front of them since the
+        episode began (space the hand filled is free)."""
         hidden = self._behind_hiding_surface(points)
         hidden[hidden] = ~self._filled(points[hidden])
         return hidden
