@@ -41,7 +41,11 @@ MAX_GOAL_CANDIDATES = 4
 
 class DepthShieldPlanner(DepthShield):
     """A vision policy through the depth shield, planning on the depth map when stuck (a
-    `Policy`). After each episode: `num_plans` tried and `num_paths` found, in all."""
+    `Policy`). After each episode: `num_plans` tried and `num_paths` found, in all.
+
+    `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`,
+    `shadow_m`, `shadow_behind_surfaces`), passed on as they are.
+    """
 
     def __init__(
         self,
@@ -52,21 +56,10 @@ class DepthShieldPlanner(DepthShield):
         seed: int = 0,
         stuck_steps: int = STUCK_STEPS,
         rrt: RRTConfig | None = None,
-        extrude_m: float = 0.0,
         plan_margin_m: float | None = None,
-        shadow_m: float | None = None,
-        shadow_behind_surfaces: bool = False,
+        **shield_options: Any,
     ) -> None:
-        super().__init__(
-            policy,
-            num_views,
-            image_size,
-            margin_m,
-            seed,
-            extrude_m=extrude_m,
-            shadow_m=shadow_m,
-            shadow_behind_surfaces=shadow_behind_surfaces,
-        )
+        super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
         self.plan_margin_m = margin_m if plan_margin_m is None else plan_margin_m
         if not 0 <= self.plan_margin_m < float("inf"):
             raise ValueError(f"plan_margin_m must be a number >= 0, got {plan_margin_m}")
