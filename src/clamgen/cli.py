@@ -382,9 +382,9 @@ class EvalConfig:
     (`clamgen.experiments.depth_planner`, beyond the paper; needs OMPL)."""
     depth_shadow_m: float | None = None
     """With --depth-shield-m: the hand also keeps out of the space the arm has hidden from the
-    cameras since the episode began, where it lies within this distance (m; 0.07 was chosen on
-    1-view validation tasks) of obstacle surface seen so far
-    (`clamgen.experiments.depth_shield.ArmShadow`). Off by default."""
+    cameras since the episode began, where it lies within this distance (m; 0.05 with
+    --depth-shadow-behind-surfaces was chosen on 1-view validation tasks) of obstacle surface
+    seen so far (`clamgen.experiments.depth_shield.ArmShadow`). Off by default."""
     depth_shadow_behind_surfaces: bool = False
     """With --depth-shadow-m: space hidden behind any surface the cameras see (obstacles'
     unseen sides too), not only behind the arm, counts as hidden."""
@@ -448,21 +448,8 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
-    if (
-        config.depth_shield_m is not None
-        or config.depth_planner
-        or config.depth_shadow_m is not None
-        or config.depth_shadow_behind_surfaces
-    ):
-        policy, source = _with_depth_shield(
-            policy,
-            source,
-            env_kwargs,
-            config.depth_shield_m,
-            config.depth_planner,
-            config.depth_shadow_m,
-            config.depth_shadow_behind_surfaces,
-        )
+    if _wants_depth_shield(config):
+        policy, source = _with_depth_shield(policy, source, env_kwargs, config)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -497,23 +484,29 @@ def evaluate_table(config: EvalConfig) -> list:
     return rows
 
 
-def _with_depth_shield(
-    policy,
-    source: str,
-    env_kwargs: dict,
-    margin_m: float | None,
-    planner: bool = False,
-    shadow_m: float | None = None,
-    behind_surfaces: bool = False,
-):
-    """`policy` acting through the depth shield (and with `planner`, planning on the depth map
-    when stuck; with `shadow_m`, keeping the hand out of the arm's shadow near seen obstacle
-    surface, or with `behind_surfaces` out of any surface's); SystemExit unless it observes
-    its joints and depth images and, with `planner` or `shadow_m`, a margin is given."""
+def _wants_depth_shield(config) -> bool:
+    """Whether any of the depth shield's options is given (`clamgen eval` and `render`)."""
+    return (
+        config.depth_shield_m is not None
+        or config.depth_planner
+        or config.depth_shadow_m is not None
+        or config.depth_shadow_behind_surfaces
+    )
+
+
+def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
+    """`policy` acting through the depth shield with `config`'s depth options (with
+    --depth-planner, planning on the depth map when stuck; with --depth-shadow-m, keeping the
+    hand out of the arm's shadow near seen obstacle surface, or with
+    --depth-shadow-behind-surfaces out of any surface's); SystemExit unless it observes its
+    joints and depth images and, with the planner or the shadow, a margin is given."""
     from importlib.util import find_spec
 
     from clamgen.experiments.depth_planner import DepthShieldPlanner
     from clamgen.experiments.depth_shield import DepthShield
+
+    margin_m, planner = config.depth_shield_m, config.depth_planner
+    shadow_m, behind_surfaces = config.depth_shadow_m, config.depth_shadow_behind_surfaces
 
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:
@@ -629,21 +622,8 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
-        if (
-            config.depth_shield_m is not None
-            or config.depth_planner
-            or config.depth_shadow_m is not None
-            or config.depth_shadow_behind_surfaces
-        ):
-            policy, _ = _with_depth_shield(
-                policy,
-                "",
-                env_kwargs,
-                config.depth_shield_m,
-                config.depth_planner,
-                config.depth_shadow_m,
-                config.depth_shadow_behind_surfaces,
-            )
+        if _wants_depth_shield(config):
+            policy, _ = _with_depth_shield(policy, "", env_kwargs, config)
         env_id = _policy_env_id(config.policy)
         if env_id in ENV_IDS:
             summary = render_rollouts(config, policy, label, env_kwargs)

@@ -368,20 +368,23 @@ class ArmShadow:
         # The geoms' surface points, fixed in the DH frames of their links (as ArmCapsules
         # keeps its axes), so that one batched kinematics call places them.
         starts, ends = arm.segments(ur5.HOME_JOINTS)
+        home_frames = forward_kinematics(ur5.HOME_JOINTS)
         shells = []
         for g in self.geoms:
             shell = _capsule_shell(arm.radii[g], arm.half_lengths[g])
             axis = (ends[g] - starts[g]) / np.linalg.norm(ends[g] - starts[g])
             world = 0.5 * (starts[g] + ends[g]) + shell @ _frames_along(axis[None])[0].T
-            inverse = np.linalg.inv(forward_kinematics(ur5.HOME_JOINTS)[arm._frame[g]])
+            inverse = np.linalg.inv(home_frames[arm._frame[g]])
             shells.append(world @ inverse[:3, :3].T + inverse[:3, 3])
         self._shell = np.concatenate(shells)  # P, 3
-        self._shell_frame = np.concatenate(
+        shell_frame = np.concatenate(
             [
                 np.full(len(shell), arm._frame[g])
                 for g, shell in zip(self.geoms, shells, strict=True)
             ]
         )
+        # (frame, which shell points it carries), once: the hand's geoms share one link.
+        self._shell_groups = [(f, shell_frame == f) for f in np.unique(shell_frame)]
         self._reach = arm.radii[self.geoms] + 0.5 * np.sqrt(3.0) * VOXEL_M
         self.deepest = np.full(views * height * width, -np.inf, np.float32)
         self.hides = np.zeros(views * height * width, bool)
@@ -406,7 +409,7 @@ class ArmShadow:
             self.hides[deeper] = depth[deeper] < FAR_CLIP_M
         else:  # only the arm does
             points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
-            self.hides[deeper] = ~occupancy._off_arm(points.astype(np.float64), joints)
+            self.hides[deeper] = ~occupancy._off_arm(points, joints)
         starts, ends = occupancy.arm.segments(joints)
         self._filled_starts.append(starts[self.geoms])
         self._filled_ends.append(ends[self.geoms])
@@ -432,8 +435,7 @@ class ArmShadow:
         joints = np.atleast_2d(joints)
         frames = forward_kinematics(np.asarray(joints, np.float64))
         points = np.empty((len(joints), len(self._shell), 3))
-        for frame in np.unique(self._shell_frame):  # (the hand's geoms share one link)
-            mine = self._shell_frame == frame
+        for frame, mine in self._shell_groups:
             rotation, origin = frames[:, frame, :3, :3], frames[:, frame, None, :3, 3]
             points[:, mine] = self._shell[mine] @ rotation.transpose(0, 2, 1) + origin
         flat = points.reshape(-1, 3)
