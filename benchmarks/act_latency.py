@@ -9,8 +9,9 @@ step on one core.
 
 The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`,
 and for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`) are timed
-along whole blocked-task episodes of their own, recorded first, so that the shield sees a
-growing obstacle map and steps that need it, as in an evaluation (its cost includes the
+along whole episodes of their own on blocked and standard tasks (8 of each), recorded first,
+so that the shield sees a growing obstacle map and steps that need it (and a policy pressed
+against an obstacle until the time limit), as in an evaluation (its cost includes the
 policy's).
 
     python benchmarks/act_latency.py [--num-calls 400]
@@ -55,7 +56,7 @@ SHIELDED = (
     ("residual-1view", None),
     ("residual-1view", SHADOW_M),
 )
-NUM_EPISODES = 3
+NUM_EPISODES = 8
 BLOCK = 50  # calls of one policy before switching to the next
 NUM_OBSERVATIONS = 20
 FIRST_SEED = TRAINING_SEEDS.start + 7_500_000  # training seeds no run resets with by default
@@ -70,19 +71,21 @@ def observations(env_kwargs: dict) -> list[dict]:
 
 
 def episodes(policy, env_kwargs: dict) -> list[list[dict]]:
-    """Observations of `NUM_EPISODES` blocked-task episodes of `policy` (a shielded one)."""
-    env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
+    """Observations of `NUM_EPISODES` episodes of `policy` (a shielded one) on each of the
+    blocked-path and the standard obstacle tasks, as the tables run it."""
     out = []
-    for i in range(NUM_EPISODES):
-        obs, _ = env.reset(seed=FIRST_SEED + i)
-        policy.reset(env)
-        seen, done = [obs], False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(policy.act(obs))
-            done = terminated or truncated
-            seen.append(obs)
-        out.append(seen[:-1])
-    env.close()
+    for family in ("blocked", "obstacles"):
+        env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
+        for i in range(NUM_EPISODES):
+            obs, _ = env.reset(seed=FIRST_SEED + i)
+            policy.reset(env)
+            seen, done = [obs], False
+            while not done:
+                obs, _, terminated, truncated, _ = env.step(policy.act(obs))
+                done = terminated or truncated
+                seen.append(obs)
+            out.append(seen[:-1])
+        env.close()
     return out
 
 
@@ -104,7 +107,13 @@ class Replay:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--num-calls", type=int, default=400, help="act calls per policy")
+    parser.add_argument(
+        "--num-calls",
+        type=int,
+        default=400,
+        help="act calls per policy (at least: a shielded one replays every recorded step "
+        "equally often)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     from clamgen.experiments.depth_shield import DepthShield
@@ -124,9 +133,16 @@ def main() -> None:
         label += f", shadow {shadow_m} m)" if shadow_m is not None else ")"
         loaded[label] = (shielded, replay)
     times: dict[str, list[float]] = {label: [] for label in loaded}
-    for start in range(0, args.num_calls, BLOCK):
+    # A shielded policy replays all its recorded steps the same number of times.
+    calls = {
+        label: len(obs.steps) * -(-args.num_calls // len(obs.steps))
+        if isinstance(obs, Replay)
+        else args.num_calls
+        for label, (_, obs) in loaded.items()
+    }
+    for start in range(0, max(calls.values()), BLOCK):
         for label, (policy, obs) in loaded.items():
-            for i in range(start, min(start + BLOCK, args.num_calls)):
+            for i in range(start, min(start + BLOCK, calls[label])):
                 ob = obs.next() if isinstance(obs, Replay) else obs[i % len(obs)]
                 tic = time.perf_counter()
                 policy.act(ob)

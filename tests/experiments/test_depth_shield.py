@@ -60,6 +60,37 @@ def test_obstacle_points_lie_on_the_obstacles(blocked_env):
         assert ((distance < 0.015).sum(axis=0) >= 10).all()
 
 
+def test_pixels_whose_depth_shrank_add_no_obstacle_surface(blocked_env):
+    """The map lifts only pixels whose depth grew since the last frame (a nearer surface where
+    there was none is the moving arm): the same voxels as lifting every changed pixel, along
+    episodes of a moving arm."""
+
+    class EveryChangedPixel(DepthOccupancy):
+        def lift(self, images, changed_only=False, with_rays=False):
+            if changed_only and self._last_depth is not None:
+                # Forget what the last frame showed where it differs: every changed pixel.
+                depth = np.asarray(images)[:, 3].reshape(-1)
+                self._last_depth = np.where(depth != self._last_depth, 0, self._last_depth)
+            return super().lift(images, changed_only, with_rays)
+
+    grown, changed = DepthOccupancy(VIEWS, SIZE, SIZE), EveryChangedPixel(VIEWS, SIZE, SIZE)
+    policy = IKInterpolationPolicy()
+    steps = 0
+    for seed in TEST_SEEDS.seeds(3):
+        obs, _ = blocked_env.reset(seed=int(seed))
+        policy.reset(blocked_env)
+        grown.reset()
+        changed.reset()
+        done = False
+        while not done:
+            grown.update(obs)
+            changed.update(obs)
+            assert np.array_equal(np.sort(grown._cells), np.sort(changed._cells))
+            obs, _, terminated, truncated, _ = blocked_env.step(policy.act(obs))
+            done, steps = terminated or truncated, steps + 1
+    assert steps > 20
+
+
 def test_arm_clearance_to_points_and_table():
     arm = ArmCapsules()
     model, data = arm.scene.model, arm.scene.data

@@ -11,10 +11,17 @@ from clamgen.envs.reach_env import MAX_JOINT_DELTA_RAD
 from clamgen.experiments.distill import Distiller
 from clamgen.experiments.shield import (
     MIN_HALF_SIZE_M,
+    SHORTENED,
     ClearanceChecker,
+    choose_action,
     load_shielded_student,
+    perturbations,
     predicted_obstacles,
+    step_checks,
+    step_checks_many,
+    step_clearance,
 )
+from clamgen.robot import ur5
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles, Scene
 
@@ -92,3 +99,60 @@ def test_a_shielded_student_on_true_poses_never_touches_an_obstacle(
     # The untrained student heads into the obstacle often; the shield turns it away every time.
     assert policy.num_shielded > 0
     assert not any(collided)
+
+
+def test_step_checks_of_many_actions_are_each_actions_own():
+    rng = np.random.default_rng(0)
+    for trial in range(50):
+        joints = rng.uniform(-3.0, 3.0, 6) if trial % 3 else ur5.JOINT_LIMITS[:, 1] - 1e-3
+        actions = rng.uniform(-1.0, 1.0, (int(rng.integers(1, 12)), 6))
+        actions *= rng.choice([0.0, 0.01, 1.0], (len(actions), 1))  # also none and tiny ones
+        checks, starts = step_checks_many(joints, actions)
+        each = [step_checks(joints, a) for a in actions]
+        np.testing.assert_array_equal(checks, np.concatenate(each))
+        np.testing.assert_array_equal(starts, np.cumsum([0] + [len(c) for c in each[:-1]]))
+
+
+class _WallChecker:
+    """Clearance to a wall where the first joint angle reaches 0.3 (a stand-in checker for
+    choose_action's test)."""
+
+    margin_m = 0.05
+
+    def clearance(self, joints):
+        return float(min(self.margin_m, 0.3 - joints[0]))
+
+    def clearances(self, joints):
+        return np.array([self.clearance(q) for q in joints])
+
+    def step_clearance(self, joints, action):
+        return step_clearance(self, joints, action)
+
+    def step_clearances(self, joints, actions):
+        return np.array([self.step_clearance(joints, a) for a in actions])
+
+
+def test_the_shield_picks_the_nearest_alternative_that_keeps_the_clearance():
+    """choose_action checks its alternatives nearest first and stops early: the same choice
+    as scoring them all (the nearest that keeps the clearance, else the one keeping most)."""
+    checker, offsets = _WallChecker(), perturbations(0)
+    rng = np.random.default_rng(1)
+    replaced = 0
+    for _ in range(200):
+        joints = np.zeros(6)
+        joints[0] = rng.uniform(0.2, 0.3)
+        action = np.tanh(rng.normal(0.0, 1.5, 6))
+        pre = np.arctanh(np.clip(action, -0.995, 0.995))
+        chosen, shielded = choose_action(checker, joints, action, pre, offsets)
+        replaced += shielded
+        if not shielded:
+            continue
+        keep = min(checker.clearance(joints), checker.margin_m)
+        alternatives = [f * action for f in SHORTENED]
+        alternatives += list(np.tanh(np.clip(pre, -3.0, 3.0) + offsets))
+        scores = checker.step_clearances(joints, np.array(alternatives))
+        distances = np.array([np.linalg.norm(a - action) for a in alternatives])
+        ok = scores >= keep
+        best = np.flatnonzero(ok)[np.argmin(distances[ok])] if ok.any() else np.argmax(scores)
+        np.testing.assert_array_equal(chosen, np.asarray(alternatives[best], np.float32))
+    assert replaced > 20

@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from clamgen.experiments.shield import step_checks, step_target
+from clamgen.experiments.shield import step_checks, step_checks_many, step_target
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import forward_kinematics
 from clamgen.sim import constants as C
@@ -228,9 +228,12 @@ class DepthOccupancy:
         self, images: np.ndarray, changed_only: bool = False, with_rays: bool = False
     ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """World points (N, 3) of the views' depth pixels that are not background and lie
-        above the table; with `changed_only`, of those whose depth changed since the last
-        call (a pixel that shows the same depth shows the same point, already looked at).
-        With `with_rays`, also their unit viewing directions (N, 3)."""
+        above the table; with `changed_only`, of those whose depth grew since the last call.
+        Only these can show static surface not yet looked at: a pixel that shows the same
+        depth shows the same point, and one whose depth shrank shows the arm (the rest of
+        the scene stands still, so a nearer surface where there was none is the arm that
+        moved in front; quantising depth keeps the order). With `with_rays`, also their unit
+        viewing directions (N, 3)."""
         images = np.asarray(images)
         if images.shape[0] != self.shape[0] or images.shape[2:] != self.shape[1:]:
             raise ValueError(
@@ -239,7 +242,7 @@ class DepthOccupancy:
             )
         depth_u8 = images[:, 3].reshape(-1)
         if changed_only and self._last_depth is not None:
-            pixels = np.flatnonzero(depth_u8 != self._last_depth)
+            pixels = np.flatnonzero(depth_u8 > self._last_depth)
         else:
             pixels = np.arange(len(depth_u8))
         if changed_only:
@@ -574,10 +577,8 @@ class DepthClearance:
 
     def step_clearances(self, joints: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """`shield.step_clearance` of each of actions (A, 6), all checks in one batch: (A,)."""
-        checks = [step_checks(joints, action) for action in actions]
-        values = self.clearances(np.concatenate(checks))
-        starts = np.cumsum([0] + [len(c) for c in checks[:-1]])
-        return np.minimum.reduceat(values, starts)
+        checks, starts = step_checks_many(joints, actions)
+        return np.minimum.reduceat(self.clearances(checks), starts)
 
 
 class DepthShield:

@@ -41,6 +41,10 @@ SHORTENED = (0.5, 0.25, 0.0)
 MIN_HALF_SIZE_M = 0.005
 """Predicted half sizes are clipped to at least this."""
 PRE_SQUASH_CLIP = 3.0
+ALTERNATIVE_BATCHES = (1, 3, 7)
+"""`choose_action` checks its alternatives nearest first, in batches split at these positions
+(the nearest alone, the next two, the next four, the rest), and stops at the first batch
+with one that keeps the clearance."""
 SLIDE_ITERATIONS = 3
 SLIDE_EPS_RAD = 1e-3
 """Finite-difference step of the clearance's gradient."""
@@ -123,6 +127,20 @@ def step_checks(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
     return joints + (np.arange(1, checks + 1) / checks)[:, None] * delta
 
 
+def step_checks_many(joints: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`step_checks` of each of actions (A, 6) in one array (the same configurations, the
+    same order), and where each action's checks start in it: (K, 6), (A,)."""
+    step = np.asarray(actions, np.float64) * MAX_JOINT_DELTA_RAD
+    delta = np.clip(joints + step, *ur5.JOINT_LIMITS.T) - joints
+    counts = np.maximum(
+        1, np.ceil(np.abs(delta).max(axis=1) / COLLISION_CHECK_RESOLUTION_RAD).astype(np.int64)
+    )
+    starts = np.concatenate([[0], np.cumsum(counts[:-1])])
+    owner = np.repeat(np.arange(len(counts)), counts)
+    fraction = (np.arange(len(owner)) - starts[owner] + 1) / counts[owner]
+    return joints + fraction[:, None] * delta[owner], starts
+
+
 def step_clearance(checker, joints: np.ndarray, action: np.ndarray) -> float:
     """Smallest `checker.clearance` along the env's straight joint step for `action`."""
     return min(checker.clearance(q) for q in step_checks(joints, action))
@@ -184,16 +202,19 @@ def choose_action(
         if checker.step_clearance(joints, slid) >= keep:
             return slid.astype(np.float32), True
     pre = np.clip(pre, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
-    alternatives = [f * action for f in SHORTENED]
-    alternatives += list(np.tanh(pre + offsets))
-    clearances = checker.step_clearances(joints, np.array(alternatives))
-    distances = np.array([np.linalg.norm(a - action) for a in alternatives])
-    ok = clearances >= keep
-    if ok.any():
-        best = int(np.flatnonzero(ok)[np.argmin(distances[ok])])
-    else:
-        best = int(np.argmax(clearances))
-    return np.asarray(alternatives[best], dtype=np.float32), True
+    shortened = np.asarray(SHORTENED)[:, None] * np.asarray(action)
+    alternatives = np.concatenate([shortened, np.tanh(pre + offsets)])
+    distances = np.linalg.norm(alternatives - action, axis=1)
+    # Nearest first, in growing batches: the first that keeps the clearance is the choice
+    # (the nearest that does, ties to the earlier alternative), usually in the first batch.
+    order = np.argsort(distances, kind="stable")
+    clearances = np.full(len(alternatives), -np.inf)
+    for batch in np.split(order, ALTERNATIVE_BATCHES):
+        clearances[batch] = checker.step_clearances(joints, alternatives[batch])
+        ok = batch[clearances[batch] >= keep]
+        if len(ok):
+            return alternatives[ok[0]].astype(np.float32), True
+    return alternatives[int(np.argmax(clearances))].astype(np.float32), True
 
 
 class ShieldedStudent:

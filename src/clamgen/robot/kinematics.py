@@ -75,12 +75,14 @@ _TWO_PI = 2.0 * np.pi
 # --------------------------------------------------------------------------------------------
 
 
-def _dh_matrices(theta: np.ndarray, d: float, a: float, alpha: float) -> np.ndarray:
+def _dh_matrices(theta: np.ndarray, d, a, alpha) -> np.ndarray:
     """Standard DH link transform ``Rz(theta) Tz(d) Tx(a) Rx(alpha)``.
 
     Args:
         theta: joint angles, any shape ``S`` (radians).
-        d, a, alpha: the link's DH constants (metres, metres, radians).
+        d, a, alpha: the link's DH constants (metres, metres, radians), or arrays of them
+            that broadcast against ``theta`` (all six links at once: shape (6,) with theta
+            (..., 6)).
 
     Returns:
         ``S + (4, 4)`` transforms of frame i expressed in frame i-1.
@@ -135,11 +137,13 @@ def forward_kinematics(joints: np.ndarray) -> np.ndarray:
     """
     q = _as_joints(joints)
     out = np.empty((*q.shape[:-1], NUM_JOINTS + 1, 4, 4))
-    pose = None
-    # The loop runs over the 6 joints only; each step is vectorised over the whole batch.
-    for i in range(NUM_JOINTS):
-        link = _dh_matrices(q[..., i], DH_D[i], DH_A[i], DH_ALPHA[i])
-        pose = link if pose is None else pose @ link
+    # Every link's transform in one vectorised call (the DH constants broadcast over the
+    # joint axis), then the chain: a loop over the 6 joints, each product batched.
+    links = _dh_matrices(q, DH_D, DH_A, DH_ALPHA)
+    pose = links[..., 0, :, :]
+    out[..., 0, :, :] = pose
+    for i in range(1, NUM_JOINTS):
+        pose = pose @ links[..., i, :, :]
         out[..., i, :, :] = pose
     out[..., NUM_JOINTS, :, :] = pose @ _FLANGE_TO_TIP
     return out
