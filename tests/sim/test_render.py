@@ -1,6 +1,10 @@
 """Rendering: RGB + metric depth in one pass per camera; the target lands where the camera
 model projects it."""
 
+import os
+import subprocess
+import sys
+
 import mujoco
 import numpy as np
 import pytest
@@ -107,6 +111,20 @@ def test_missing_gl_backend_gives_a_hint(monkeypatch):
     def broken(*args, **kwargs):
         raise mujoco.FatalError("no display")
 
-    monkeypatch.setattr(render.mujoco, "GLContext", broken)
+    monkeypatch.setattr(render, "_gl_context_class", lambda backend: broken)
     with pytest.raises(RuntimeError, match="MUJOCO_GL=egl"):
         render.make_gl_context(8, 8)
+
+
+def test_rendering_works_when_mujoco_was_imported_first():
+    """A user's script that imports mujoco before clamgen (so MuJoCo chose its backend before
+    clamgen set MUJOCO_GL=egl) still renders headless."""
+    script = (
+        "import mujoco\n"
+        "from clamgen.envs import ReachEnv\n"
+        "env = ReachEnv(num_obstacles=2, num_views=1, image_size=32, obs_mode='images')\n"
+        "obs, _ = env.reset(seed=0)\n"
+        "assert obs['images'][:, 3].std() > 0\n"
+    )
+    environment = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    subprocess.run([sys.executable, "-c", script], check=True, env=environment, timeout=120)

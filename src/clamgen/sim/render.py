@@ -41,6 +41,20 @@ def _after_fork_in_child() -> None:
 os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
+def _gl_context_class(backend: str):
+    """MuJoCo's context class for `backend` as it is set now. `mujoco.GLContext` follows
+    MUJOCO_GL as it was when mujoco was first imported: a user who imported mujoco before
+    clamgen (which sets MUJOCO_GL=egl by default) would otherwise get a windowed backend."""
+    backend = backend.lower().strip()
+    if backend == "egl":
+        from mujoco.egl import GLContext
+    elif backend == "osmesa":
+        from mujoco.osmesa import GLContext
+    else:
+        GLContext = mujoco.GLContext
+    return GLContext
+
+
 def make_gl_context(width: int, height: int) -> mujoco.GLContext:
     """An offscreen GL context, with a hint on how to get one when it fails."""
     global _num_contexts_made
@@ -48,7 +62,7 @@ def make_gl_context(width: int, height: int) -> mujoco.GLContext:
         raise RuntimeError(_FORK_HINT)
     backend = os.environ.get("MUJOCO_GL", "")
     try:
-        context = mujoco.GLContext(width, height)
+        context = _gl_context_class(backend)(width, height)
     except Exception as error:  # MuJoCo raises various error types per backend
         raise RuntimeError(_GL_HINT.format(backend=backend)) from error
     _num_contexts_made += 1
