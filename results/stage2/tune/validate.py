@@ -135,6 +135,14 @@ def main() -> None:
         "behind the arm",
     )
     parser.add_argument(
+        "--bridge",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="with --depth-shield: neighbouring pixels' obstacle points up to M apart are "
+        "joined by surface (DepthOccupancy's bridge_m)",
+    )
+    parser.add_argument(
         "--no-slide",
         action="store_true",
         help="the depth shield's alternatives leave out the slid action",
@@ -190,13 +198,16 @@ def main() -> None:
                 plan_margin_m=args.plan_margin,
                 shadow_m=args.shadow,
                 shadow_behind_surfaces=args.shadow_behind_surfaces,
+                bridge_m=args.bridge,
             )
             label += f" (depth shield {args.depth_shield} m + planner when stuck"
             if args.plan_margin is not None:
                 label += f" keeping {args.plan_margin} m"
             label += f", extruded {args.extrude} m" if args.extrude else ""
             label += f", arm's shadow within {args.shadow} m kept out" if args.shadow else ""
-            label += " (behind any surface))" if args.shadow_behind_surfaces else ")"
+            label += " (behind any surface)" if args.shadow_behind_surfaces else ""
+            label += f", pixels bridged up to {args.bridge} m" if args.bridge else ""
+            label += ")"
         elif args.depth_shield is not None:
             from clamgen.experiments.depth_shield import DepthShield
 

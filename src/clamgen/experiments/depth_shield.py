@@ -68,6 +68,10 @@ SHADOW_TOLERANCE_M = 0.01
 stored depth's step is 8.6 mm)."""
 HIDDEN_CLEARANCE_M = -0.01
 """The clearance `DepthClearance` gives a configuration that reaches into hidden space."""
+BRIDGE_M = 0.05
+"""`clamgen eval --depth-bridge-m`'s suggested value: neighbouring pixels' obstacle points up
+to this far apart are taken as one surface (an obstacle side seen at a grazing angle leaves
+its pixels' points centimetres apart); farther, as an edge in front of something behind."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -191,9 +195,13 @@ class DepthOccupancy:
         width: int,
         arm: ArmCapsules | None = None,
         extrude_m: float = 0.0,
+        bridge_m: float = 0.0,
     ):
+        if not 0 <= bridge_m < float("inf"):
+            raise ValueError(f"bridge_m must be a number >= 0, got {bridge_m}")
         self.arm = arm if arm is not None else ArmCapsules()
         self.extrude_m = extrude_m
+        self.bridge_m = bridge_m
         scene = self.arm.scene
         mujoco.mj_kinematics(scene.model, scene.data)
         rays = []
@@ -217,23 +225,37 @@ class DepthOccupancy:
         self._cells = np.empty(0, np.int64)
         self.points = np.empty((0, 3))
         self._last_depth: np.ndarray | None = None
+        # Per pixel, the obstacle point it showed (NaN: none yet), for `bridge_m`; and its
+        # neighbours to the right and below in the same view (-1: none).
+        self._pixel_points = np.full((num_views * height * width, 3), np.nan)
+        pixel = np.arange(num_views * height * width).reshape(num_views, height, width)
+        right, below = np.full_like(pixel, -1), np.full_like(pixel, -1)
+        right[:, :, :-1], below[:, :-1] = pixel[:, :, 1:], pixel[:, 1:]
+        left, above = np.full_like(pixel, -1), np.full_like(pixel, -1)
+        left[:, :, 1:], above[:, 1:] = pixel[:, :, :-1], pixel[:, :-1]
+        self._neighbours = np.stack([right, below, left, above], -1).reshape(-1, 4)
 
     def reset(self) -> None:
         self._last_depth = None
+        self._pixel_points[:] = np.nan
         self._grid[self._cells] = False
         self._cells = np.empty(0, np.int64)
         self.points = np.empty((0, 3))
 
     def lift(
-        self, images: np.ndarray, changed_only: bool = False, with_rays: bool = False
-    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        self,
+        images: np.ndarray,
+        changed_only: bool = False,
+        with_rays: bool = False,
+        with_pixels: bool = False,
+    ) -> np.ndarray | tuple[np.ndarray, ...]:
         """World points (N, 3) of the views' depth pixels that are not background and lie
         above the table; with `changed_only`, of those whose depth grew since the last call.
         Only these can show static surface not yet looked at: a pixel that shows the same
         depth shows the same point, and one whose depth shrank shows the arm (the rest of
         the scene stands still, so a nearer surface where there was none is the arm that
         moved in front; quantising depth keeps the order). With `with_rays`, also their unit
-        viewing directions (N, 3)."""
+        viewing directions (N, 3); with `with_pixels`, also their flat pixel indices (N,)."""
         images = np.asarray(images)
         if images.shape[0] != self.shape[0] or images.shape[2:] != self.shape[1:]:
             raise ValueError(
@@ -252,9 +274,8 @@ class DepthOccupancy:
         valid = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
         depth, keep = depth[valid], pixels[valid]
         points = (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
-        if with_rays:
-            return points, self.directions[keep]
-        return points
+        extras = ([self.directions[keep]] if with_rays else []) + ([keep] if with_pixels else [])
+        return (points, *extras) if extras else points
 
     def voxel_centres(self, cells: np.ndarray) -> np.ndarray:
         return GRID_LOW_M + (np.stack(np.unravel_index(cells, self._dims), axis=1) + 0.5) * VOXEL_M
@@ -265,7 +286,9 @@ class DepthOccupancy:
         """Voxels (flat indices) of obstacle surface in `images` not yet kept: lifted points
         above the table, off the target, the pedestal and the arm at `joints`, with another
         such point near."""
-        points, directions = self.lift(images, changed_only=True, with_rays=True)
+        points, directions, pixels = self.lift(
+            images, changed_only=True, with_rays=True, with_pixels=True
+        )
         radial2 = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
         off_target = points - np.asarray(goal)
         keep = (radial2 > PEDESTAL_RADIUS_M**2) | (points[:, 2] > PEDESTAL_TOP_M)
@@ -275,6 +298,8 @@ class DepthOccupancy:
         index = np.flatnonzero(keep)  # the lifted points still in question
         cells = voxels[index] @ self._strides
         new = ~self._grid[cells]
+        if self.bridge_m > 0:  # points on surface already kept can be bridged to
+            self._pixel_points[pixels[index[~new]]] = points[index[~new]]
         index, cells = index[new], cells[new]
         if len(index):
             off_arm = self._off_arm(points[index], joints)
@@ -289,7 +314,30 @@ class DepthOccupancy:
         if self.extrude_m > 0:
             behind = self._behind(points[index], directions[index], joints)
             cells = np.concatenate([cells, behind])
+        if self.bridge_m > 0:
+            cells = np.concatenate([cells, self._bridges(points[index], pixels[index], goal)])
         return np.unique(cells)
+
+    def _bridges(self, points: np.ndarray, pixels: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Cells on the straight segments between each new obstacle point and its pixel
+        neighbours' obstacle points up to `bridge_m` away (taken as one surface: between
+        pixel centres the camera sees no sample of it), voxel-spaced, off the target."""
+        self._pixel_points[pixels] = points
+        neighbours = self._neighbours[pixels]  # N, 4
+        other = self._pixel_points[np.where(neighbours >= 0, neighbours, 0)]  # N, 4, 3
+        gap = np.linalg.norm(other - points[:, None], axis=-1)
+        near = (neighbours >= 0) & (gap > VOXEL_M) & (gap <= self.bridge_m)  # NaN: False
+        if not near.any():
+            return np.empty(0, np.int64)
+        starts, ends = np.broadcast_to(points[:, None], other.shape)[near], other[near]
+        steps = int(np.ceil(self.bridge_m / VOXEL_M))
+        along = np.arange(1, steps) / steps  # interior points, at most a voxel apart
+        between = (starts[:, None] + along[None, :, None] * (ends - starts)[:, None]).reshape(-1, 3)
+        off_target = between - np.asarray(goal)
+        between = between[np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2]
+        voxels = np.floor((between - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+        inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        return voxels[inside] @ self._strides
 
     def _off_arm(self, points: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (squared
@@ -587,7 +635,9 @@ class DepthShield:
     `policy`: a `Policy` observing images (and joints and goal); `num_views`, `image_size`:
     its observation's; `extrude_m`: the hidden side of each seen surface is taken as filled
     this deep (`DepthOccupancy`); `shadow`: the hand keeps out of the space the arm has hidden
-    since the episode began (`ArmShadow`). Counts `num_shielded` of `num_steps`.
+    since the episode began (`ArmShadow`); `bridge_m`: neighbouring pixels' obstacle points up
+    to this far apart are joined by surface (`DepthOccupancy`). Counts `num_shielded` of
+    `num_steps`.
     """
 
     def __init__(
@@ -601,6 +651,7 @@ class DepthShield:
         extrude_m: float = 0.0,
         shadow_m: float | None = None,
         shadow_behind_surfaces: bool = False,
+        bridge_m: float = 0.0,
     ) -> None:
         from clamgen.experiments.shield import perturbations
 
@@ -608,7 +659,7 @@ class DepthShield:
             raise ValueError(f"margin_m must be a number >= 0, got {margin_m}")
         self.policy = policy
         arm = ArmCapsules()
-        self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm, extrude_m)
+        self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm, extrude_m, bridge_m)
         self.shadow = None
         if shadow_m is not None:
             self.shadow = ArmShadow(self.occupancy, shadow_m, shadow_behind_surfaces)
