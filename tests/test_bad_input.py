@@ -277,6 +277,23 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         "--depth-shadow-behind-surfaces",
     )
     assert "--depth-shadow-behind-surfaces needs --depth-shadow-m" in message
+    message = refused(
+        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-bridge-m", "0.05"
+    )
+    assert "--depth-bridge-m needs --depth-shield-m" in message
+    message = refused(
+        workdir,
+        "eval",
+        "--table",
+        "2",
+        "--policy",
+        "residual-1view",
+        "--depth-shield-m",
+        "0.01",
+        "--depth-bridge-m",
+        "-0.05",
+    )
+    assert "--depth-bridge-m must be a number >= 0, got -0.05" in message
 
 
 def test_render_depth_shield_needs_a_vision_residual_and_the_planner_a_margin(workdir):

@@ -91,6 +91,31 @@ def test_pixels_whose_depth_shrank_add_no_obstacle_surface(blocked_env):
     assert steps > 20
 
 
+def test_bridged_pixels_add_surface_on_the_obstacles(blocked_env):
+    """Joining neighbouring pixels' obstacle points (bridge_m) keeps more of the obstacles'
+    surface, and all of it on them."""
+    plain = DepthOccupancy(VIEWS, SIZE, SIZE)
+    bridged = DepthOccupancy(VIEWS, SIZE, SIZE, bridge_m=0.05)
+    policy = IKInterpolationPolicy()
+    for seed in TEST_SEEDS.seeds(2):
+        obs, _ = blocked_env.reset(seed=int(seed))
+        policy.reset(blocked_env)
+        plain.reset()
+        bridged.reset()
+        done = False
+        while not done:
+            plain.update(obs)
+            bridged.update(obs)
+            obs, _, terminated, truncated, _ = blocked_env.step(policy.act(obs))
+            done = terminated or truncated
+        obstacles = blocked_env.unwrapped.scene.obstacles
+        assert surface_distance(bridged.points, obstacles).min(axis=1).max() < 0.015
+        assert set(map(tuple, plain.points)) <= set(map(tuple, bridged.points))
+        assert len(bridged.points) > 1.5 * len(plain.points)
+    with pytest.raises(ValueError, match="bridge_m"):
+        DepthOccupancy(VIEWS, SIZE, SIZE, bridge_m=-1.0)
+
+
 def test_arm_clearance_to_points_and_table():
     arm = ArmCapsules()
     model, data = arm.scene.model, arm.scene.data

@@ -65,6 +65,9 @@ class RenderConfig:
     depth_shadow_behind_surfaces: bool = False
     """With --depth-shadow-m: behind any seen surface, as `clamgen eval
     --depth-shadow-behind-surfaces`."""
+    depth_bridge_m: float = 0.0
+    """With --depth-shield-m: join neighbouring pixels' obstacle points up to this far apart
+    by surface, as `clamgen eval --depth-bridge-m`. 0: off."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
