@@ -465,10 +465,11 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
             curves_ax.fill_between(
                 curve.steps, curve.iqm_low, curve.iqm_high, color=colour, alpha=0.2, lw=0
             )
-    title = "(b) validation success during training\nIQM over runs, 95% band"
+    # Titles in short lines: the panels stand close, and a long line runs into its neighbour.
+    title = "(b) validation success\nduring training:\nIQM over runs, 95% band"
     if result.mixed_curves:
-        title += "; dashed: on mixed tasks"
-    curves_ax.set_title(title)
+        title += "\ndashed: on mixed tasks"
+    curves_ax.set_title(title, fontsize=10)
     curves_ax.set_xlabel("environment steps")
     curves_ax.set_ylabel("success rate (validation tasks)")
     curves_ax.set_ylim(-0.02, 1.02)
@@ -498,7 +499,9 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
     success_ax.set_xlim(-0.02, 1.12)
     success_ax.set_ylim(-0.6, n - 0.4)  # runs' dots stay beside their row, even for one row
     success_ax.set_xlabel("test success rate")
-    success_ax.set_title("(a) test success: IQM (diamond, 95% CI),\nruns (dots), paper (x)")
+    success_ax.set_title(
+        "(a) test success:\nIQM (diamond, 95% CI),\nruns (dots), paper (x)", fontsize=10
+    )
     success_ax.grid(alpha=0.3, axis="x")
     # (c) performance profile: fraction of runs x conditions above each success threshold. A
     # single run's profile is one step at its score, the dot of (a) again: where some rows have
@@ -512,8 +515,9 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
                 profile.taus, profile.low, profile.high, color=colour, alpha=0.15, lw=0
             )
     profile_ax.set_title(
-        "(c) performance profile (95% band)"
-        + ("\nrows with several runs" if len(profiled) < len(result.rows) else "")
+        "(c) performance profile\n(95% band)"
+        + ("\nrows with several runs" if len(profiled) < len(result.rows) else ""),
+        fontsize=10,
     )
     profile_ax.set_xlabel("test success threshold tau")
     profile_ax.set_ylabel("fraction of runs with success > tau")
