@@ -66,12 +66,12 @@ def test_pixels_whose_depth_shrank_add_no_obstacle_surface(blocked_env):
     episodes of a moving arm."""
 
     class EveryChangedPixel(DepthOccupancy):
-        def lift(self, images, changed_only=False, with_rays=False):
+        def lift(self, images, changed_only=False, **options):
             if changed_only and self._last_depth is not None:
                 # Forget what the last frame showed where it differs: every changed pixel.
                 depth = np.asarray(images)[:, 3].reshape(-1)
                 self._last_depth = np.where(depth != self._last_depth, 0, self._last_depth)
-            return super().lift(images, changed_only, with_rays)
+            return super().lift(images, changed_only, **options)
 
     grown, changed = DepthOccupancy(VIEWS, SIZE, SIZE), EveryChangedPixel(VIEWS, SIZE, SIZE)
     policy = IKInterpolationPolicy()
