@@ -68,10 +68,6 @@ SHADOW_TOLERANCE_M = 0.01
 stored depth's step is 8.6 mm)."""
 HIDDEN_CLEARANCE_M = -0.01
 """The clearance `DepthClearance` gives a configuration that reaches into hidden space."""
-BRIDGE_M = 0.05
-"""`clamgen eval --depth-bridge-m`'s suggested value: neighbouring pixels' obstacle points up
-to this far apart are taken as one surface (an obstacle side seen at a grazing angle leaves
-its pixels' points centimetres apart); farther, as an edge in front of something behind."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -185,7 +181,12 @@ class DepthOccupancy:
     """Obstacle surface points seen so far in an episode, from RGBD views of the fixed cameras.
 
     `num_views`, `height`, `width`: the observation's views (the first `num_views` cameras of
-    `constants.CAMERAS`) and image size.
+    `constants.CAMERAS`) and image size. `extrude_m`: the hidden side of each seen surface is
+    taken as filled this deep. `bridge_m`: a new obstacle point and a pixel neighbour's up to
+    this far apart are joined by surface (a side seen at a grazing angle leaves its pixels'
+    points centimetres apart; farther apart, the neighbour is an edge in front of something
+    behind). Measured on 1-view validation tasks with 0.05 m: no change in collisions
+    (`results/stage2/shield/README.md`). 0 turns either off.
     """
 
     def __init__(
@@ -225,8 +226,8 @@ class DepthOccupancy:
         self._cells = np.empty(0, np.int64)
         self.points = np.empty((0, 3))
         self._last_depth: np.ndarray | None = None
-        # Per pixel, the obstacle point it showed (NaN: none yet), for `bridge_m`; and its
-        # neighbours to the right and below in the same view (-1: none).
+        # Per pixel, the obstacle point it showed (NaN: none yet), for `bridge_m`; and its four
+        # neighbours in the same view, right, below, left and above (-1: off the image).
         self._pixel_points = np.full((num_views * height * width, 3), np.nan)
         pixel = np.arange(num_views * height * width).reshape(num_views, height, width)
         right, below = np.full_like(pixel, -1), np.full_like(pixel, -1)
