@@ -288,6 +288,7 @@ def test_sweep_on_local_ray_is_killed_and_resumes_without_redoing_finished_work(
             f"a checkpoint of the long run ({log.read_text()[-2000:]})",
         )
         assert (short / "policy.pt").is_file() and (short / "eval.json").is_file()
+        assert not (short / "checkpoints").exists()  # a finished run's are deleted
         assert not (long / "policy.pt").exists()
     finally:
         first.send_signal(signal.SIGKILL)
@@ -313,6 +314,7 @@ def test_sweep_on_local_ray_is_killed_and_resumes_without_redoing_finished_work(
     steps, _ = S.read_validation(long)
     assert steps[-1] == 3000 and len(steps) == len(set(steps))
 
+    assert not (long / "checkpoints").exists()
     summary = json.loads((root / "summary.json").read_text())
     assert summary["counts"]["done"] == 2
     by_id = {r["id"]: r for r in summary["runs"]}

@@ -53,6 +53,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -112,6 +113,11 @@ class SweepConfig:
     """Seconds between progress lines (runs done / running / failed, validation success)."""
     dry_run: bool = False
     """Print the plan and every command without running anything."""
+    keep_checkpoints: bool = False
+    """Keep a finished run's training checkpoints (its replay buffer: over 1 GB for an image
+    run). By default they are deleted once the run is trained and evaluated: a sweep of a
+    few dozen image runs would otherwise fill the disk, and a finished run is never resumed
+    (its policy, config, metrics and evaluation stay)."""
 
 
 # ------------------------------------------------------------------------------ spec
@@ -501,9 +507,10 @@ def _last_line(log: Path) -> str:
     return lines[-1][-300:] if lines else "(no output)"
 
 
-def execute_run(run: Run) -> dict[str, Any]:
+def execute_run(run: Run, keep_checkpoints: bool = False) -> dict[str, Any]:
     """Train (or resume) and evaluate one run, each as a `clamgen` subprocess; returns the
-    run's status. Runs inside a Ray task, or directly."""
+    run's status. Unless `keep_checkpoints`, a run that is done loses its training
+    checkpoints. Runs inside a Ray task, or directly."""
     import fcntl
 
     run.run_dir.mkdir(parents=True, exist_ok=True)
@@ -522,6 +529,8 @@ def execute_run(run: Run) -> dict[str, Any]:
             log = run.run_dir / "eval.log"
             if _run_cli(run.eval_args, log, lock.fileno()) != 0 or not run.eval_json.is_file():
                 return {"status": "failed", "error": f"evaluation: {_last_line(log)}"}
+        if not keep_checkpoints:
+            shutil.rmtree(run.run_dir / "checkpoints", ignore_errors=True)
     return {"status": "done", "resumed": resumed, "seconds": time.perf_counter() - start}
 
 
@@ -706,7 +715,7 @@ def run_sweep(config: SweepConfig) -> dict:
         while todo or pending:
             while todo and len(pending) < limit:
                 run = todo.pop(0)
-                pending[remote.remote(run)] = run
+                pending[remote.remote(run, config.keep_checkpoints)] = run
                 statuses[run.id] = {"status": "running"}
             write_summary(spec, runs, statuses, kept=kept)
             if time.monotonic() - last_progress >= config.progress_every_s:
