@@ -504,8 +504,9 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     """`policy` acting through the depth shield with `config`'s depth options (with
     --depth-planner, planning on the depth map when stuck; with --depth-shadow-m, keeping the
     hand out of the arm's shadow near seen obstacle surface, or with
-    --depth-shadow-behind-surfaces out of any surface's); SystemExit unless it observes its
-    joints and depth images and, with the planner or the shadow, a margin is given."""
+    --depth-shadow-behind-surfaces out of any surface's; with --depth-bridge-m, joining
+    neighbouring pixels' surface); SystemExit unless it observes its joints and depth images
+    and, with any other depth option, a margin is given."""
     from importlib.util import find_spec
 
     from clamgen.experiments.depth_planner import DepthShieldPlanner
@@ -513,7 +514,6 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
 
     margin_m, planner = config.depth_shield_m, config.depth_planner
     shadow_m, behind_surfaces = config.depth_shadow_m, config.depth_shadow_behind_surfaces
-
     bridge_m = config.depth_bridge_m
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:

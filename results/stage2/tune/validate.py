@@ -220,11 +220,14 @@ def main() -> None:
                 extrude_m=args.extrude,
                 shadow_m=args.shadow,
                 shadow_behind_surfaces=args.shadow_behind_surfaces,
+                bridge_m=args.bridge,
             )
             label += f" (depth shield {args.depth_shield} m" + ("" if args.no_slide else ", slide")
             label += f", extruded {args.extrude} m" if args.extrude else ""
             label += f", arm's shadow within {args.shadow} m kept out" if args.shadow else ""
-            label += " (behind any surface))" if args.shadow_behind_surfaces else ")"
+            label += " (behind any surface)" if args.shadow_behind_surfaces else ""
+            label += f", pixels bridged up to {args.bridge} m" if args.bridge else ""
+            label += ")"
         if args.clearance:
             label += f" [scored with {args.clearance} m clearance]"
             env_kwargs = {**env_kwargs, "collision_margin_m": args.clearance}

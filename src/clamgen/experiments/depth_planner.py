@@ -44,7 +44,7 @@ class DepthShieldPlanner(DepthShield):
     `Policy`). After each episode: `num_plans` tried and `num_paths` found, in all.
 
     `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`,
-    `shadow_m`, `shadow_behind_surfaces`), passed on as they are.
+    `shadow_m`, `shadow_behind_surfaces`, `bridge_m`), passed on as they are.
     """
 
     def __init__(

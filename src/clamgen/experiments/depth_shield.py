@@ -278,6 +278,12 @@ class DepthOccupancy:
         extras = ([self.directions[keep]] if with_rays else []) + ([keep] if with_pixels else [])
         return (points, *extras) if extras else points
 
+    def voxels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The grid indices (N, 3) of the voxels holding `points` (N, 3), and which of them
+        lie inside the grid (N,)."""
+        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+        return voxels, (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+
     def voxel_centres(self, cells: np.ndarray) -> np.ndarray:
         return GRID_LOW_M + (np.stack(np.unravel_index(cells, self._dims), axis=1) + 0.5) * VOXEL_M
 
@@ -294,8 +300,8 @@ class DepthOccupancy:
         off_target = points - np.asarray(goal)
         keep = (radial2 > PEDESTAL_RADIUS_M**2) | (points[:, 2] > PEDESTAL_TOP_M)
         keep &= np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2
-        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        keep &= (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        voxels, inside = self.voxels(points)
+        keep &= inside
         index = np.flatnonzero(keep)  # the lifted points still in question
         cells = voxels[index] @ self._strides
         new = ~self._grid[cells]
@@ -336,8 +342,7 @@ class DepthOccupancy:
         between = (starts[:, None] + along[None, :, None] * (ends - starts)[:, None]).reshape(-1, 3)
         off_target = between - np.asarray(goal)
         between = between[np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2]
-        voxels = np.floor((between - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        voxels, inside = self.voxels(between)
         return voxels[inside] @ self._strides
 
     def _off_arm(self, points: np.ndarray, joints: np.ndarray) -> np.ndarray:
@@ -363,8 +368,7 @@ class DepthOccupancy:
         arm."""
         steps = np.arange(1, round(self.extrude_m / VOXEL_M) + 1) * VOXEL_M
         behind = (points[:, None] + steps[None, :, None] * directions[:, None]).reshape(-1, 3)
-        voxels = np.floor((behind - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        inside = (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        voxels, inside = self.voxels(behind)
         behind, voxels = behind[inside], voxels[inside]
         return (voxels @ self._strides)[self._off_arm(behind, joints)]
 
@@ -469,9 +473,7 @@ class ArmShadow:
     def _filled(self, points: np.ndarray) -> np.ndarray:
         """Which of `points` lie in a voxel the distal geoms filled at a configuration seen
         (its centre within a half diagonal of a geom's surface)."""
-        occupancy = self.occupancy
-        voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        inside = (voxels >= 0).all(axis=1) & (voxels < occupancy._dims).all(axis=1)
+        voxels, inside = self.occupancy.voxels(points)
         out = np.zeros(len(points), bool)
         if not self._filled_starts or not inside.any():
             return out
