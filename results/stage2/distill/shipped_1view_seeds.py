@@ -1,0 +1,134 @@
+"""The shipped `residual-1view` recipe over several training seeds, alone and as the 1-view
+hybrid (depth shield keeping the hand out of unseen space behind seen surfaces, planner on the
+depth map when stuck).
+
+    clamgen sweep results/sweeps/shipped-1view.toml --max-concurrent 1   # the DAgger runs
+    python results/stage2/distill/shipped_1view_seeds.py                  # the rest
+
+Seed 0 is the shipped student (results/table2/distilled_pooled_1view.json and
+planned_hidden_residual-1view.json). Recipe seed k (1, 2, ...) regresses a fresh 1-view student
+on the pooled data of the sweep's 1-view run of seed k and its 2-view run of seed k + 2
+(`offline.py`, 24k updates, as for seed 0), into runs/offline/d1-pool12-seed<k>, and evaluates
+it on the 200 + 200 test tasks alone and as the hybrid (shipped_1view/seed<k>_*.json). Each step
+is skipped when its output exists, so the script resumes. Last it prints, per row and task
+family, the mean success over seeds with rliable's 95% stratified-bootstrap interval and each
+seed's success and collision rate, and writes them to shipped_1view/seeds.txt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from clamgen.experiments.aggregate import aggregate_rows
+
+HERE = Path(__file__).resolve().parent
+OUT = HERE / "shipped_1view"
+TABLE2 = HERE.parents[1] / "table2"
+SWEEP = Path("runs/sweeps/shipped-1view")
+RUN_1VIEW = "clamgen-1-rgbd-view-distilled-from-the-lookahead-teacher-with-3-cm-clearance-ours"
+RUN_2VIEWS = "clamgen-2-rgbd-views-distilled-from-the-lookahead-teacher-with-3-cm-clearance-ours"
+SECOND_SEED_OFFSET = 2
+"""Recipe seed k pools the 1-view run of seed k with the 2-view run of seed k + 2."""
+UPDATES = 24_000
+FAMILIES = ("obstacles", "blocked")
+HYBRID_FLAGS = (
+    "--depth-shield-m", "0.01", "--depth-planner",
+    "--depth-shadow-m", "0.05", "--depth-shadow-behind-surfaces",
+)  # fmt: skip
+ROWS = {
+    "student": (
+        "CLAMGen, 1 RGBD view, regressed on the pooled data of the 1- and 2-view clearance "
+        "students (ours)",
+        (),
+        "distilled_pooled_1view.json",
+    ),
+    "hybrid": (
+        "CLAMGen, 1 RGBD view, shipped `residual-1view` + depth shield keeping the hand out of "
+        "unseen space behind seen surfaces + planner on the depth map when stuck (ours)",
+        HYBRID_FLAGS,
+        "planned_hidden_residual-1view.json",
+    ),
+}
+
+
+def _run(command: list[str]) -> None:
+    print("$", shlex.join(command), flush=True)
+    subprocess.run(command, check=True)
+
+
+def _student(seed: int) -> Path:
+    out = Path(f"runs/offline/d1-pool12-seed{seed}")
+    if (out / "policy.pt").is_file():
+        return out
+    first = SWEEP / RUN_1VIEW / f"seed{seed}"
+    second = SWEEP / RUN_2VIEWS / f"seed{seed + SECOND_SEED_OFFSET}"
+    for run in (first, second):
+        if not (run / "policy.pt").is_file():
+            raise SystemExit(f"{run} is not trained yet: run the shipped-1view sweep first")
+    script = str(HERE / "offline.py")
+    _run([sys.executable, script, str(first), str(out), "--updates", str(UPDATES), "--pool", str(second)])  # fmt: skip
+    return out
+
+
+def _evaluate(seed: int, student: Path) -> None:
+    for key, (name, flags, _) in ROWS.items():
+        out = OUT / f"seed{seed}_{key}"
+        if out.with_suffix(".json").is_file():
+            continue
+        command = ["clamgen", "eval", "--table", "2", "--policy", str(student / "policy.pt")]
+        _run([*command, *flags, "--num-tasks", "200", "--name", name, "--out", str(out)])
+
+
+def _scores(path: Path) -> dict[str, tuple[float, float]]:
+    rows = json.loads(path.read_text())["rows"]
+    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
+
+
+def summarize(seeds: list[int]) -> str:
+    lines = []
+    for key, (name, _, shipped) in ROWS.items():
+        found = [(0, _scores(TABLE2 / shipped))]
+        for seed in seeds:
+            path = OUT / f"seed{seed}_{key}.json"
+            if path.is_file():
+                found.append((seed, _scores(path)))
+        lines.append(f"{key}: {name}; {len(found)} seeds {[s for s, _ in found]}")
+        for family in FAMILIES:
+            success = np.array([[scores[family][0]] for _, scores in found])
+            collision = ", ".join(f"{scores[family][1]:.3f}" for _, scores in found)
+            per_seed = ", ".join(f"{v:.3f}" for v in success[:, 0])
+            interval = ""
+            if len(found) > 1:
+                mean = aggregate_rows({family: success})[family].mean
+                interval = f" ({mean.low:.3f}-{mean.high:.3f})"
+            lines.append(
+                f"  {family:9s} success mean {success.mean():.3f}{interval}; per seed "
+                f"{per_seed}; collision per seed {collision} (mean "
+                f"{np.mean([s[family][1] for _, s in found]):.3f})"
+            )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--summarize-only", action="store_true", help="train and evaluate nothing")
+    args = parser.parse_args()
+    OUT.mkdir(parents=True, exist_ok=True)
+    if not args.summarize_only:
+        for seed in args.seeds:
+            _evaluate(seed, _student(seed))
+    text = summarize(args.seeds)
+    print(text)
+    (OUT / "seeds.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
