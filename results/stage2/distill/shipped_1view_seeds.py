@@ -9,7 +9,8 @@ Seed 0 is the shipped student (results/table2/distilled_pooled_1view.json and
 planned_hidden_residual-1view.json). Recipe seed k (1, 2, ...) regresses a fresh 1-view student
 on the pooled data of the sweep's 1-view run of seed k and its 2-view run of seed k + 2
 (`offline.py`, 24k updates, as for seed 0), into runs/offline/d1-pool12-seed<k>, and evaluates
-it on the 200 + 200 test tasks alone and as the hybrid (shipped_1view/seed<k>_*.json). Each step
+it on the 200 + 200 test tasks alone and as the hybrid (shipped_1view/seed<k>_*.json; each
+evaluation carries its row's name, that of the shipped seed-0 row it adds a seed to). Each step
 is skipped when its output exists, so the script resumes. Last it prints, per row and task
 family, the mean success over seeds with rliable's 95% stratified-bootstrap interval and each
 seed's success and collision rate, and writes them to shipped_1view/seeds.txt.
