@@ -73,8 +73,8 @@ def _student(seed: int) -> Path:
     for run in (first, second):
         if not (run / "policy.pt").is_file():
             raise SystemExit(f"{run} is not trained yet: run the shipped-1view sweep first")
-    script = str(HERE / "offline.py")
-    _run([sys.executable, script, str(first), str(out), "--updates", str(UPDATES), "--pool", str(second)])  # fmt: skip
+    script = [sys.executable, str(HERE / "offline.py"), str(first), str(out)]
+    _run([*script, "--updates", str(UPDATES), "--pool", str(second)])
     return out
 
 

@@ -24,8 +24,8 @@ import torch
 from tqdm import tqdm
 
 from clamgen.envs import ReachEnv
-from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments import depth_shield
+from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import DepthShieldPlanner
 from clamgen.experiments.policies import load_policy
 from clamgen.sim import constants as C
