@@ -83,6 +83,8 @@ def main() -> None:
             if info["collision"] and "collision_step" not in row:
                 row["collision_step"] = step
                 row["collision_distance_m"] = before
+                # The env stopped the arm before the colliding sub-step and only re-ran the
+                # kinematics since, so the contacts are still that sub-step's.
                 contact = np.array(env.unwrapped.scene.data.contact[0].pos)
                 row["contact_to_target_m"] = float(np.linalg.norm(contact - obs["desired_goal"]))
             if terminated or truncated:
