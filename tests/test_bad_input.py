@@ -239,7 +239,7 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
     message = refused(
         workdir, "eval", "--table", "2", "--policy", "base", "--depth-shield-m", "0.01"
     )
-    assert "--depth-shield-m needs a vision residual" in message
+    assert "the depth shield needs a vision residual" in message
     message = refused(
         workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-shield-m", "-1"
     )
@@ -294,11 +294,25 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         "-0.05",
     )
     assert "--depth-bridge-m must be a number >= 0, got -0.05" in message
+    message = refused(
+        workdir,
+        "eval",
+        "--table",
+        "2",
+        "--policy",
+        "residual-1view",
+        "--depth-hybrid",
+        "--depth-shield-m",
+        "0.02",
+    )
+    assert "--depth-hybrid sets the depth options itself: drop the others" in message
+    message = refused(workdir, "eval", "--table", "2", "--policy", "base", "--depth-hybrid")
+    assert "the depth shield needs a vision residual" in message
 
 
 def test_render_depth_shield_needs_a_vision_residual_and_the_planner_a_margin(workdir):
     message = refused(workdir, "render", "--policy", "ik", "--depth-shield-m", "0.01")
-    assert "--depth-shield-m needs a vision residual" in message
+    assert "the depth shield needs a vision residual" in message
     message = refused(workdir, "render", "--policy", "residual-1view", "--depth-planner")
     assert "--depth-planner needs --depth-shield-m" in message
 

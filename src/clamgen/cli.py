@@ -372,6 +372,11 @@ class EvalConfig:
     lookahead_margin_m: float = 0.0
     """With --lookahead-candidates: the clearance (m) its plans keep from obstacles and the
     table where they can (0: true contact)."""
+    depth_hybrid: bool = False
+    """A vision residual acts as Table 2's hybrid rows: through the depth shield at 1 cm with
+    the planner when stuck, and from one view keeping the hand out of unseen space within
+    5 cm behind seen surfaces (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper;
+    the settings chosen on validation tasks). Not with the other --depth-* options."""
     depth_shield_m: float | None = None
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen
@@ -491,6 +496,10 @@ def evaluate_table(config: EvalConfig) -> list:
 
 def _wants_depth_shield(config) -> bool:
     """Whether any of the depth shield's options is given (`clamgen eval` and `render`)."""
+    return config.depth_hybrid or _depth_options_given(config)
+
+
+def _depth_options_given(config) -> bool:
     return (
         config.depth_shield_m is not None
         or config.depth_planner
@@ -502,15 +511,38 @@ def _wants_depth_shield(config) -> bool:
 
 def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     """`policy` acting through the depth shield with `config`'s depth options (with
-    --depth-planner, planning on the depth map when stuck; with --depth-shadow-m, keeping the
-    hand out of the arm's shadow near seen obstacle surface, or with
-    --depth-shadow-behind-surfaces out of any surface's; with --depth-bridge-m, joining
-    neighbouring pixels' surface); SystemExit unless it observes its joints and depth images
-    and, with any other depth option, a margin is given."""
+    --depth-hybrid, the Table 2 hybrid setting for its number of views; with --depth-planner,
+    planning on the depth map when stuck; with --depth-shadow-m, keeping the hand out of the
+    arm's shadow near seen obstacle surface, or with --depth-shadow-behind-surfaces out of any
+    surface's; with --depth-bridge-m, joining neighbouring pixels' surface); SystemExit unless
+    it observes its joints and depth images and, with any other depth option, a margin is
+    given."""
     from importlib.util import find_spec
 
-    from clamgen.experiments.depth_planner import DepthShieldPlanner
-    from clamgen.experiments.depth_shield import DepthShield
+    from clamgen.experiments.depth_planner import HYBRID
+
+    if config.depth_hybrid and _depth_options_given(config):
+        raise SystemExit("--depth-hybrid sets the depth options itself: drop the others")
+    guard = None if config.depth_hybrid else _depth_guard(config)
+    views = env_kwargs.get("num_views", 0)
+    if not views or env_kwargs.get("obs_mode") != "both":
+        raise SystemExit(
+            "the depth shield needs a vision residual (a policy that observes its joints and "
+            "RGBD views)"
+        )
+    guard = guard or HYBRID[min(views, max(HYBRID))]
+    if guard.planner and find_spec("ompl") is None:
+        raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
+    try:
+        shielded = guard.wrap(policy, views, env_kwargs["image_size"])
+    except ValueError as error:
+        raise SystemExit(f"bad --depth-shield-m: {error}") from error
+    return shielded, source + guard.describe()
+
+
+def _depth_guard(config):
+    """The `DepthGuard` of `config`'s --depth-* options; SystemExit for a bad combination."""
+    from clamgen.experiments.depth_planner import DepthGuard
 
     margin_m, planner = config.depth_shield_m, config.depth_planner
     shadow_m, behind_surfaces = config.depth_shadow_m, config.depth_shadow_behind_surfaces
@@ -527,35 +559,7 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
         raise SystemExit("--depth-shadow-behind-surfaces needs --depth-shadow-m")
     if not 0 <= bridge_m < float("inf"):
         raise SystemExit(f"--depth-bridge-m must be a number >= 0, got {bridge_m}")
-    views = env_kwargs.get("num_views", 0)
-    if not views or env_kwargs.get("obs_mode") != "both":
-        raise SystemExit(
-            "--depth-shield-m needs a vision residual (a policy that observes its joints and "
-            "RGBD views)"
-        )
-    if planner and find_spec("ompl") is None:
-        raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
-    wrapper = DepthShieldPlanner if planner else DepthShield
-    try:
-        shielded = wrapper(
-            policy,
-            views,
-            env_kwargs["image_size"],
-            margin_m,
-            shadow_m=shadow_m,
-            shadow_behind_surfaces=behind_surfaces,
-            bridge_m=bridge_m,
-        )
-    except ValueError as error:
-        raise SystemExit(f"bad --depth-shield-m: {error}") from error
-    source += f" + depth shield ({margin_m} m"
-    if shadow_m is not None:
-        source += f", {'any surface' if behind_surfaces else 'arm'}'s shadow within {shadow_m} m"
-    if bridge_m:
-        source += f", pixels bridged up to {bridge_m} m"
-    source += ")"
-    source += " + planner when stuck" if planner else ""
-    return shielded, source
+    return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m)
 
 
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):

@@ -2,17 +2,25 @@
 true obstacles, the arm's clearance to points, and obstacle-blind IK interpolation kept off
 the obstacles it would hit."""
 
+import json
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
+import tyro
 
 from clamgen.baselines import IKInterpolationPolicy
+from clamgen.cli import EvalConfig, _depth_guard, _wants_depth_shield, _with_depth_shield
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import TEST_SEEDS
+from clamgen.experiments.depth_planner import HYBRID, DepthGuard, DepthShieldPlanner
 from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield
 from clamgen.experiments.evaluate import evaluate
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles
+
+REPO = Path(__file__).resolve().parents[2]
 
 VIEWS, SIZE = 3, 64
 
@@ -230,3 +238,26 @@ def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
         shadow.update(obs["images"], joints)
     assert anything.hidden_points(far_side).mean() > 0.9
     assert arm_only.hidden_points(far_side).mean() < 0.1
+
+
+@pytest.mark.parametrize("views", sorted(HYBRID))
+def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
+    guard = HYBRID[views]
+    config = tyro.cli(EvalConfig, args=["--table", "2", *guard.flags()])
+    assert _depth_guard(config) == guard
+    config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid"])
+    assert _wants_depth_shield(config)
+    env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
+    _, source = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+    assert source == guard.describe()
+
+
+def test_hybrid_guards_describe_the_committed_hybrid_rows():
+    one_view = Path("results/stage2/distill/shipped_1view/seed1_hybrid.json")
+    two_views = Path("results/stage2/shield/rl2_seed2_planned.json")
+    for views, path in ((1, one_view), (2, two_views)):
+        policy = json.loads((REPO / path).read_text())["policy"]
+        assert policy.endswith("policy.pt" + HYBRID[views].describe())
+    guard = HYBRID[1]
+    assert isinstance(guard.wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)
+    assert not isinstance(DepthGuard().wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from clamgen.experiments.aggregate import aggregate_rows
+from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "shipped_1view"
@@ -39,10 +40,7 @@ SECOND_SEED_OFFSET = 2
 """Recipe seed k pools the 1-view run of seed k with the 2-view run of seed k + 2."""
 UPDATES = 24_000
 FAMILIES = ("obstacles", "blocked")
-HYBRID_FLAGS = (
-    "--depth-shield-m", "0.01", "--depth-planner",
-    "--depth-shadow-m", "0.05", "--depth-shadow-behind-surfaces",
-)  # fmt: skip
+HYBRID_FLAGS = HYBRID[1].flags()  # the committed 1-view hybrid setting
 ROWS = {
     "student": (
         "CLAMGen, 1 RGBD view, regressed on the pooled data of the 1- and 2-view clearance "

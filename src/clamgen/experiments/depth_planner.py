@@ -18,7 +18,7 @@ baseline) knows the obstacles exactly; this planner knows only what the cameras 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -143,3 +143,61 @@ class DepthShieldPlanner(DepthShield):
             if result.succeeded:
                 return result.waypoints
         return None
+
+
+@dataclass(frozen=True)
+class DepthGuard:
+    """How a vision policy acts on its own depth images: the shield's clearance `margin_m`,
+    with `planner` planning on the depth map when stuck, with `shadow_m` keeping the hand out
+    of hidden space within that distance of seen obstacle surface (behind the arm, or with
+    `shadow_behind_surfaces` behind any surface), with `bridge_m` joining neighbouring
+    pixels' surface. The fields are `clamgen eval|render`'s `--depth-*` options."""
+
+    margin_m: float = MARGIN_M
+    planner: bool = False
+    shadow_m: float | None = None
+    shadow_behind_surfaces: bool = False
+    bridge_m: float = 0.0
+
+    def wrap(self, policy, num_views: int, image_size: int) -> DepthShield:
+        """`policy` acting through this guard (a ValueError for bad settings)."""
+        wrapper = DepthShieldPlanner if self.planner else DepthShield
+        return wrapper(
+            policy,
+            num_views,
+            image_size,
+            self.margin_m,
+            shadow_m=self.shadow_m,
+            shadow_behind_surfaces=self.shadow_behind_surfaces,
+            bridge_m=self.bridge_m,
+        )
+
+    def flags(self) -> tuple[str, ...]:
+        """The `clamgen eval` options that give this guard."""
+        flags = ["--depth-shield-m", str(self.margin_m)]
+        flags += ["--depth-planner"] if self.planner else []
+        if self.shadow_m is not None:
+            flags += ["--depth-shadow-m", str(self.shadow_m)]
+            flags += ["--depth-shadow-behind-surfaces"] if self.shadow_behind_surfaces else []
+        flags += ["--depth-bridge-m", str(self.bridge_m)] if self.bridge_m else []
+        return tuple(flags)
+
+    def describe(self) -> str:
+        """What a row name's policy gets appended: ` + depth shield (...)[ + planner ...]`."""
+        text = f" + depth shield ({self.margin_m} m"
+        if self.shadow_m is not None:
+            behind = "any surface" if self.shadow_behind_surfaces else "arm"
+            text += f", {behind}'s shadow within {self.shadow_m} m"
+        text += f", pixels bridged up to {self.bridge_m} m" if self.bridge_m else ""
+        return text + ")" + (" + planner when stuck" if self.planner else "")
+
+
+HYBRID = {
+    3: DepthGuard(planner=True),
+    2: DepthGuard(planner=True),
+    1: DepthGuard(planner=True, shadow_m=0.05, shadow_behind_surfaces=True),
+}
+"""The hybrid rows of Table 2 by number of views (`clamgen eval --depth-hybrid`): the shield
+at 1 cm (chosen on validation tasks) with the planner when stuck; from one view the hand also
+keeps out of unseen space within 5 cm behind seen surfaces (chosen on 1-view validation
+tasks; `results/stage2/shield/README.md`)."""

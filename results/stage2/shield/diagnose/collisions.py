@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -23,7 +24,7 @@ from tqdm import tqdm
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import DepthShieldPlanner
+from clamgen.experiments.depth_planner import HYBRID
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.shield import step_checks
 
@@ -39,14 +40,8 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     policy, _, env_kwargs = load_policy(args.policy)
-    shielded = DepthShieldPlanner(
-        policy,
-        env_kwargs["num_views"],
-        env_kwargs["image_size"],
-        0.01,
-        shadow_m=args.shadow,
-        shadow_behind_surfaces=True,
-    )
+    guard = replace(HYBRID[1], shadow_m=args.shadow)  # the committed 1-view hybrid
+    shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
     env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
     scene = env.unwrapped.scene
     model, data = scene.model, scene.data

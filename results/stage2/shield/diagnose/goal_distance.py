@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ from tqdm import tqdm
 from clamgen.envs import ReachEnv
 from clamgen.experiments import depth_shield
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import DepthShieldPlanner
+from clamgen.experiments.depth_planner import HYBRID
 from clamgen.experiments.policies import load_policy
 from clamgen.sim import constants as C
 
@@ -55,14 +56,8 @@ def main() -> None:
     depth_shield.TARGET_REACH_M = C.TARGET_RADIUS_M + args.target_filter
     torch.set_num_threads(1)
     policy, _, env_kwargs = load_policy(args.policy)
-    shielded = DepthShieldPlanner(
-        policy,
-        env_kwargs["num_views"],
-        env_kwargs["image_size"],
-        args.margin,
-        shadow_m=0.05,
-        shadow_behind_surfaces=True,
-    )
+    guard = replace(HYBRID[1], margin_m=args.margin)  # the committed 1-view hybrid
+    shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
     env = ReachEnv(num_obstacles=2, task_family=args.family, **env_kwargs)
     if args.seeds_from:
         lines = args.seeds_from.read_text().splitlines()
