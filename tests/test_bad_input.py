@@ -306,6 +306,23 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         "0.02",
     )
     assert "--depth-hybrid sets the depth options itself: drop the others" in message
+    message = refused(
+        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-fine-size", "128"
+    )
+    assert "--depth-fine-size needs --depth-shield-m" in message
+    message = refused(
+        workdir,
+        "eval",
+        "--table",
+        "2",
+        "--policy",
+        "residual-1view",
+        "--depth-shield-m",
+        "0.01",
+        "--depth-fine-size",
+        "4",
+    )
+    assert "--depth-fine-size must be 0 or 8..1024, got 4" in message
     message = refused(workdir, "eval", "--table", "2", "--policy", "base", "--depth-hybrid")
     assert "the depth shield needs a vision residual" in message
 

@@ -398,6 +398,11 @@ class EvalConfig:
     are joined by surface on the depth map, so that a side seen at a grazing angle is not
     left sparse (`clamgen.experiments.depth_shield.DepthOccupancy`, beyond the paper; 0.05
     on 1-view validation tasks changed nothing measurable). 0: off."""
+    depth_fine_size: int = 0
+    """With --depth-shield-m: the shield reads the views' depth from a finer depth camera at
+    the same poses, rendered at this many pixels a side (`ReachEnv(fine_depth_size=...)`, an
+    extra sensor, beyond the paper); the policy still acts on its own images. 0: the
+    policy's own images."""
 
 
 TABLE2_ROW_NAMES = {
@@ -459,7 +464,7 @@ def evaluate_table(config: EvalConfig) -> list:
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
     if _wants_depth_shield(config):
-        policy, source = _with_depth_shield(policy, source, env_kwargs, config)
+        policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -506,6 +511,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_shadow_m is not None
         or config.depth_shadow_behind_surfaces
         or config.depth_bridge_m != 0
+        or config.depth_fine_size != 0
     )
 
 
@@ -514,9 +520,10 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     --depth-hybrid, the Table 2 hybrid setting for its number of views; with --depth-planner,
     planning on the depth map when stuck; with --depth-shadow-m, keeping the hand out of the
     arm's shadow near seen obstacle surface, or with --depth-shadow-behind-surfaces out of any
-    surface's; with --depth-bridge-m, joining neighbouring pixels' surface); SystemExit unless
-    it observes its joints and depth images and, with any other depth option, a margin is
-    given."""
+    surface's; with --depth-bridge-m, joining neighbouring pixels' surface; with
+    --depth-fine-size, reading a finer depth camera), its source, and the env's options with
+    what the shield needs added; SystemExit unless it observes its joints and depth images
+    and, with any other depth option, a margin is given."""
     from importlib.util import find_spec
 
     from clamgen.experiments.depth_planner import HYBRID
@@ -537,11 +544,12 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
         shielded = guard.wrap(policy, views, env_kwargs["image_size"])
     except ValueError as error:
         raise SystemExit(f"bad --depth-shield-m: {error}") from error
-    return shielded, source + guard.describe()
+    return shielded, source + guard.describe(), env_kwargs | guard.env_kwargs()
 
 
 def _depth_guard(config):
     """The `DepthGuard` of `config`'s --depth-* options; SystemExit for a bad combination."""
+    from clamgen.envs.reach_env import MAX_IMAGE_SIZE
     from clamgen.experiments.depth_planner import DepthGuard
 
     margin_m, planner = config.depth_shield_m, config.depth_planner
@@ -552,6 +560,8 @@ def _depth_guard(config):
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
         if bridge_m != 0:
             raise SystemExit("--depth-bridge-m needs --depth-shield-m (the map it adds to)")
+        if config.depth_fine_size != 0:
+            raise SystemExit("--depth-fine-size needs --depth-shield-m (the shield that reads it)")
         raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     if shadow_m is not None and not 0 < shadow_m < float("inf"):
         raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")
@@ -559,7 +569,10 @@ def _depth_guard(config):
         raise SystemExit("--depth-shadow-behind-surfaces needs --depth-shadow-m")
     if not 0 <= bridge_m < float("inf"):
         raise SystemExit(f"--depth-bridge-m must be a number >= 0, got {bridge_m}")
-    return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m)
+    fine = config.depth_fine_size
+    if fine != 0 and not 8 <= fine <= MAX_IMAGE_SIZE:
+        raise SystemExit(f"--depth-fine-size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine}")
+    return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine)
 
 
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):
@@ -641,7 +654,7 @@ def render(config) -> dict:
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
         if _wants_depth_shield(config):
-            policy, _ = _with_depth_shield(policy, "", env_kwargs, config)
+            policy, _, env_kwargs = _with_depth_shield(policy, "", env_kwargs, config)
         env_id = _policy_env_id(config.policy)
         if env_id in ENV_IDS:
             summary = render_rollouts(config, policy, label, env_kwargs)

@@ -278,9 +278,28 @@ def test_bad_input_is_refused_clearly():
         ({"task_family": "hard", "num_obstacles": 2}, "task_family must be one of"),
         ({"task_family": "blocked"}, "needs num_obstacles >= 1"),
         ({"task_family": "reach", "num_obstacles": 2}, "needs num_obstacles = 0"),
+        ({"fine_depth_size": 64}, "needs num_views >= 1"),
+        ({"fine_depth_size": 4, "num_views": 1, "obs_mode": "both"}, "fine_depth_size"),
     ]:
         with pytest.raises(ValueError, match=message):
             ReachEnv(**kwargs)
+
+
+def test_fine_depth_is_the_views_depth_rendered_finer():
+    fine = make(ENV_IDS[1], num_views=2, obs_mode="both", image_size=SMALL, fine_depth_size=48)
+    check_env(fine, skip_render_check=True)
+    plain = make(ENV_IDS[1], num_views=2, obs_mode="both", image_size=48)
+    action = np.full(6, 0.5)
+    for env in (fine, plain):
+        env.reset(seed=5)
+    for _ in range(3):
+        obs_fine = fine.step(action)[0]
+        obs_plain = plain.step(action)[0]
+        assert obs_fine["images"].shape == (2, 4, SMALL, SMALL)
+        assert obs_fine["fine_depth"].shape == (2, 1, 48, 48)
+        np.testing.assert_array_equal(obs_fine["fine_depth"], obs_plain["images"][:, 3:])
+    fine.close()
+    plain.close()
 
 
 def test_render_mode_rgb_array_gives_an_outside_view():

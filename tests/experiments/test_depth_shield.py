@@ -124,6 +124,30 @@ def test_bridged_pixels_add_surface_on_the_obstacles(blocked_env):
         DepthOccupancy(VIEWS, SIZE, SIZE, bridge_m=-1.0)
 
 
+def test_shield_on_the_fine_depth_sees_what_a_shield_on_images_that_size_sees():
+    fine = ReachEnv(
+        num_obstacles=2,
+        task_family="blocked",
+        obs_mode="both",
+        num_views=1,
+        image_size=32,
+        fine_depth_size=SIZE,
+    )
+    plain = DepthShield(IKInterpolationPolicy(), 1, SIZE)
+    on_fine = DepthShield(IKInterpolationPolicy(), 1, 32, fine_depth_size=SIZE)
+    ik = IKInterpolationPolicy()
+    obs, _ = fine.reset(seed=int(TEST_SEEDS.seeds(1)[0]))
+    for shield in (plain, on_fine, ik):
+        shield.reset(fine)
+    for _ in range(8):
+        as_images = {**obs, "images": np.repeat(obs["fine_depth"], 4, axis=1)}
+        np.testing.assert_array_equal(on_fine.observe(obs), plain.observe(as_images))
+        assert len(on_fine.checker.points) > 0
+        np.testing.assert_array_equal(on_fine.checker.points, plain.checker.points)
+        obs = fine.step(ik.act(obs))[0]
+    fine.close()
+
+
 def test_arm_clearance_to_points_and_table():
     arm = ArmCapsules()
     model, data = arm.scene.model, arm.scene.data
@@ -243,13 +267,17 @@ def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
 @pytest.mark.parametrize("views", sorted(HYBRID))
 def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     guard = HYBRID[views]
-    config = tyro.cli(EvalConfig, args=["--table", "2", *guard.flags()])
-    assert _depth_guard(config) == guard
+    finer = DepthGuard(0.02, True, 0.05, False, 0.03, 128)
+    for each in (guard, finer):
+        config = tyro.cli(EvalConfig, args=["--table", "2", *each.flags()])
+        assert _depth_guard(config) == each
     config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid"])
     assert _wants_depth_shield(config)
     env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
-    _, source = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+    _, source, kwargs = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
     assert source == guard.describe()
+    assert kwargs == env_kwargs | guard.env_kwargs()
+    assert finer.env_kwargs() == {"fine_depth_size": 128}
 
 
 def test_hybrid_guards_describe_the_committed_hybrid_rows():

@@ -49,7 +49,7 @@ import numpy as np
 
 from clamgen.robot import ur5
 from clamgen.sim import constants as C
-from clamgen.sim.render import MultiViewRenderer
+from clamgen.sim.render import MultiViewRenderer, depth_to_uint8
 from clamgen.sim.scene import Obstacles, Scene
 from clamgen.sim.state import SimState, images_from_render, render_state
 from clamgen.tasks import TASK_FAMILIES, reach
@@ -98,6 +98,9 @@ class ReachEnv(gym.Env):
             False (the paper): the arm stops before contact and the episode goes on.
         max_episode_steps: truncation horizon (None: never; `gym.make` adds a TimeLimit).
         render_mode: None or "rgb_array" (an outside view, for videos).
+        fine_depth_size: > 0: also render each view's depth alone at this size into
+            `fine_depth` (V, 1, S, S) uint8, a finer depth camera at the same pose for a
+            safety layer (`clamgen.experiments.depth_shield`; beyond the paper); 0: none.
     """
 
     metadata: ClassVar[dict] = {
@@ -119,6 +122,7 @@ class ReachEnv(gym.Env):
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
         render_mode: str | None = None,
         task_family: str | None = None,
+        fine_depth_size: int = 0,
     ) -> None:
         num_obstacles = _integer("num_obstacles", num_obstacles, 0, C.MAX_OBSTACLES)
         task_family = task_family or ("obstacles" if num_obstacles else "reach")
@@ -143,6 +147,13 @@ class ReachEnv(gym.Env):
                 "pass obs_mode='images' or 'both' to observe the views, or num_views=0"
             )
         image_size = _integer("image_size", image_size, 8, MAX_IMAGE_SIZE)
+        fine_depth_size = _integer("fine_depth_size", fine_depth_size, 0, MAX_IMAGE_SIZE)
+        if fine_depth_size and not num_views:
+            raise ValueError("fine_depth_size renders the views' depth: it needs num_views >= 1")
+        if 0 < fine_depth_size < 8:
+            raise ValueError(
+                f"fine_depth_size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine_depth_size}"
+            )
         if max_episode_steps is not None:
             max_episode_steps = _integer("max_episode_steps", max_episode_steps, 1)
         if not (
@@ -178,6 +189,16 @@ class ReachEnv(gym.Env):
             if self.num_views
             else None
         )
+        self._fine_renderer = (
+            MultiViewRenderer(
+                self.scene.model,
+                self.scene.camera_ids[: self.num_views],
+                fine_depth_size,
+                fine_depth_size,
+            )
+            if fine_depth_size
+            else None
+        )
         self._overview_renderer: MultiViewRenderer | None = None
         if num_obstacles:
             self._target_box = (reach.GOAL_BOX_LOW_M, reach.GOAL_BOX_HIGH_M)
@@ -195,6 +216,9 @@ class ReachEnv(gym.Env):
         if self.num_views:
             shape = (self.num_views, 4, self.image_size, self.image_size)
             spaces["images"] = gym.spaces.Box(0, 255, shape, np.uint8)
+        if fine_depth_size:
+            shape = (self.num_views, 1, fine_depth_size, fine_depth_size)
+            spaces["fine_depth"] = gym.spaces.Box(0, 255, shape, np.uint8)
         if include_obstacle_state:
             spaces["obstacles"] = gym.spaces.Box(-2.0, 2.0, (num_obstacles, 8), np.float32)
         self.observation_space = gym.spaces.Dict(spaces)
@@ -311,7 +335,7 @@ class ReachEnv(gym.Env):
         return self._overview_renderer.render(self.scene.data)[0][0]
 
     def close(self) -> None:
-        for renderer in (self._renderer, self._overview_renderer):
+        for renderer in (self._renderer, self._fine_renderer, self._overview_renderer):
             if renderer is not None:
                 renderer.close()
 
@@ -383,6 +407,8 @@ class ReachEnv(gym.Env):
         if self._renderer is not None:
             mujoco.mj_kinematics(scene.model, scene.data)  # mocap target moved since last update
             obs["images"] = images_from_render(*self._renderer.render(scene.data))
+        if self._fine_renderer is not None:
+            obs["fine_depth"] = depth_to_uint8(self._fine_renderer.render(scene.data)[1])[:, None]
         if self.include_obstacle_state:
             obs["obstacles"] = scene.obstacles.as_array()
         return obs

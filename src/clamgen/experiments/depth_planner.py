@@ -151,13 +151,20 @@ class DepthGuard:
     with `planner` planning on the depth map when stuck, with `shadow_m` keeping the hand out
     of hidden space within that distance of seen obstacle surface (behind the arm, or with
     `shadow_behind_surfaces` behind any surface), with `bridge_m` joining neighbouring
-    pixels' surface. The fields are `clamgen eval|render`'s `--depth-*` options."""
+    pixels' surface, with `fine_depth_size` reading the views' depth from a finer depth
+    camera at the same poses (the env's `fine_depth`, see `env_kwargs`). The fields are
+    `clamgen eval|render`'s `--depth-*` options."""
 
     margin_m: float = MARGIN_M
     planner: bool = False
     shadow_m: float | None = None
     shadow_behind_surfaces: bool = False
     bridge_m: float = 0.0
+    fine_depth_size: int = 0
+
+    def env_kwargs(self) -> dict[str, int]:
+        """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
+        return {"fine_depth_size": self.fine_depth_size} if self.fine_depth_size else {}
 
     def wrap(self, policy, num_views: int, image_size: int) -> DepthShield:
         """`policy` acting through this guard (a ValueError for bad settings)."""
@@ -170,6 +177,7 @@ class DepthGuard:
             shadow_m=self.shadow_m,
             shadow_behind_surfaces=self.shadow_behind_surfaces,
             bridge_m=self.bridge_m,
+            fine_depth_size=self.fine_depth_size,
         )
 
     def flags(self) -> tuple[str, ...]:
@@ -180,6 +188,7 @@ class DepthGuard:
             flags += ["--depth-shadow-m", str(self.shadow_m)]
             flags += ["--depth-shadow-behind-surfaces"] if self.shadow_behind_surfaces else []
         flags += ["--depth-bridge-m", str(self.bridge_m)] if self.bridge_m else []
+        flags += ["--depth-fine-size", str(self.fine_depth_size)] if self.fine_depth_size else []
         return tuple(flags)
 
     def describe(self) -> str:
@@ -189,6 +198,7 @@ class DepthGuard:
             behind = "any surface" if self.shadow_behind_surfaces else "arm"
             text += f", {behind}'s shadow within {self.shadow_m} m"
         text += f", pixels bridged up to {self.bridge_m} m" if self.bridge_m else ""
+        text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
         return text + ")" + (" + planner when stuck" if self.planner else "")
 
 

@@ -263,7 +263,7 @@ class DepthOccupancy:
                 f"expected images of shape (V, 4, H, W) with (V, H, W) = {self.shape}, "
                 f"got {images.shape}"
             )
-        depth_u8 = images[:, 3].reshape(-1)
+        depth_u8 = images[:, -1].reshape(-1)  # RGBD or depth alone: depth comes last
         if changed_only and self._last_depth is not None:
             pixels = np.flatnonzero(depth_u8 > self._last_depth)
         else:
@@ -372,10 +372,11 @@ class DepthOccupancy:
         behind, voxels = behind[inside], voxels[inside]
         return (voxels @ self._strides)[self._off_arm(behind, joints)]
 
-    def update(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Add the obstacle surface seen in `obs` to the episode's voxels; all voxel centres."""
+    def update(self, obs: Mapping[str, np.ndarray], key: str = "images") -> np.ndarray:
+        """Add the obstacle surface seen in `obs[key]` (the RGBD views, or `fine_depth`) to
+        the episode's voxels; all voxel centres."""
         joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
-        cells = self.new_obstacle_cells(obs["images"], joints, obs["desired_goal"])
+        cells = self.new_obstacle_cells(obs[key], joints, obs["desired_goal"])
         if len(cells):
             self._grid[cells] = True
             self._cells = np.concatenate([self._cells, cells])
@@ -458,7 +459,7 @@ class ArmShadow:
         """Deepen each pixel's seen depth with `images` (taken at `joints`) and take the space
         the distal geoms fill as free."""
         occupancy = self.occupancy
-        depth = uint8_to_depth(np.asarray(images)[:, 3].reshape(-1))
+        depth = uint8_to_depth(np.asarray(images)[:, -1].reshape(-1))
         deeper = np.flatnonzero(depth > self.deepest)
         self.deepest[deeper] = depth[deeper]
         if self.behind_surfaces:  # any surface seen hides what lies behind it
@@ -636,11 +637,13 @@ class DepthShield:
     """Any vision policy acting through the depth shield (a `Policy`).
 
     `policy`: a `Policy` observing images (and joints and goal); `num_views`, `image_size`:
-    its observation's; `extrude_m`: the hidden side of each seen surface is taken as filled
-    this deep (`DepthOccupancy`); `shadow`: the hand keeps out of the space the arm has hidden
-    since the episode began (`ArmShadow`); `bridge_m`: neighbouring pixels' obstacle points up
-    to this far apart are joined by surface (`DepthOccupancy`). Counts `num_shielded` of
-    `num_steps`.
+    its observation's; `fine_depth_size` > 0: the shield reads the views' depth at this size
+    from the observation's `fine_depth` instead (`ReachEnv(fine_depth_size=...)`, a finer
+    depth camera at the same poses; the policy still acts on its own images); `extrude_m`:
+    the hidden side of each seen surface is taken as filled this deep (`DepthOccupancy`);
+    `shadow`: the hand keeps out of the space the arm has hidden since the episode began
+    (`ArmShadow`); `bridge_m`: neighbouring pixels' obstacle points up to this far apart are
+    joined by surface (`DepthOccupancy`). Counts `num_shielded` of `num_steps`.
     """
 
     def __init__(
@@ -655,14 +658,19 @@ class DepthShield:
         shadow_m: float | None = None,
         shadow_behind_surfaces: bool = False,
         bridge_m: float = 0.0,
+        fine_depth_size: int = 0,
     ) -> None:
         from clamgen.experiments.shield import perturbations
 
         if not 0 <= margin_m < float("inf"):
             raise ValueError(f"margin_m must be a number >= 0, got {margin_m}")
+        if fine_depth_size < 0:
+            raise ValueError(f"fine_depth_size must be >= 0, got {fine_depth_size}")
         self.policy = policy
+        self.depth_key = "fine_depth" if fine_depth_size else "images"
+        size = fine_depth_size or image_size
         arm = ArmCapsules()
-        self.occupancy = DepthOccupancy(num_views, image_size, image_size, arm, extrude_m, bridge_m)
+        self.occupancy = DepthOccupancy(num_views, size, size, arm, extrude_m, bridge_m)
         self.shadow = None
         if shadow_m is not None:
             self.shadow = ArmShadow(self.occupancy, shadow_m, shadow_behind_surfaces)
@@ -688,10 +696,10 @@ class DepthShield:
 
     def observe(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """Add what `obs` shows to the obstacle map; the arm's joints."""
-        self.checker.points = self.occupancy.update(obs)
+        self.checker.points = self.occupancy.update(obs, self.depth_key)
         joints = np.asarray(obs["observation"], np.float64)[: ur5.NUM_JOINTS]
         if self.shadow is not None:
-            self.shadow.update(obs["images"], joints)
+            self.shadow.update(obs[self.depth_key], joints)
         return joints
 
     def shield(self, joints: np.ndarray, action: np.ndarray) -> np.ndarray:

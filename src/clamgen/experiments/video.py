@@ -71,6 +71,9 @@ class RenderConfig:
     depth_bridge_m: float = 0.0
     """With --depth-shield-m: join neighbouring pixels' obstacle points up to this far apart
     by surface, as `clamgen eval --depth-bridge-m`. 0: off."""
+    depth_fine_size: int = 0
+    """With --depth-shield-m: the shield reads a finer depth camera at this size, as
+    `clamgen eval --depth-fine-size`. 0: the policy's own images."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
