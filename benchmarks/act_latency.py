@@ -8,7 +8,8 @@ that load from other processes affects all alike. The blocked-path issue's aim: 
 step on one core.
 
 The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`,
-and for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`) are timed
+and for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`, and with
+that and the shield reading a 128-pixel depth camera, `--depth-fine-size 128`) are timed
 along whole episodes of their own on blocked and standard tasks (8 of each), recorded first,
 so that the shield sees a growing obstacle map and steps that need it (and a policy pressed
 against an obstacle until the time limit), as in an evaluation (its cost includes the
@@ -50,11 +51,14 @@ SHIELD_MARGIN_M = 0.01
 SHADOW_M = 0.05
 """`clamgen eval --depth-shadow-m 0.05 --depth-shadow-behind-surfaces` as chosen for one view
 (unseen space behind seen surfaces, near them, kept out of)."""
-SHIELDED = (
-    ("residual-3views", None),
-    ("residual-2views", None),
-    ("residual-1view", None),
-    ("residual-1view", SHADOW_M),
+FINE_DEPTH_SIZE = 128
+"""`clamgen eval --depth-fine-size 128`: the shield reads the depth at 128 pixels a side."""
+SHIELDED = (  # policy, shadow, the shield's depth image size (0: the policy's own)
+    ("residual-3views", None, 0),
+    ("residual-2views", None, 0),
+    ("residual-1view", None, 0),
+    ("residual-1view", SHADOW_M, 0),
+    ("residual-1view", SHADOW_M, FINE_DEPTH_SIZE),
 )
 NUM_EPISODES = 8
 BLOCK = 50  # calls of one policy before switching to the next
@@ -116,22 +120,21 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    from clamgen.experiments.depth_shield import DepthShield
+    from clamgen.experiments.depth_planner import DepthGuard
 
     loaded = {}
     for label, name in POLICIES:
         policy, _, env_kwargs = load_policy(name)
         loaded[label] = (policy, observations(env_kwargs))
-    for name, shadow_m in SHIELDED:
+    for name, shadow_m, fine in SHIELDED:
         policy, _, env_kwargs = load_policy(name)
-        views, size = env_kwargs["num_views"], env_kwargs["image_size"]
-        shielded = DepthShield(
-            policy, views, size, SHIELD_MARGIN_M, shadow_m=shadow_m, shadow_behind_surfaces=True
-        )
-        replay = Replay(shielded, episodes(shielded, env_kwargs))
+        guard = DepthGuard(SHIELD_MARGIN_M, False, shadow_m, shadow_m is not None, 0.0, fine)
+        shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
+        replay = Replay(shielded, episodes(shielded, env_kwargs | guard.env_kwargs()))
         label = f"{name} + depth shield ({SHIELD_MARGIN_M} m"
-        label += f", shadow {shadow_m} m)" if shadow_m is not None else ")"
-        loaded[label] = (shielded, replay)
+        label += f", shadow {shadow_m} m" if shadow_m is not None else ""
+        label += f", depth at {fine} px" if fine else ""
+        loaded[label + ")"] = (shielded, replay)
     times: dict[str, list[float]] = {label: [] for label in loaded}
     # A shielded policy replays all its recorded steps the same number of times.
     calls = {
