@@ -281,11 +281,12 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
 
 
 def test_hybrid_guards_describe_the_committed_hybrid_rows():
-    one_view = Path("results/stage2/distill/shipped_1view/seed1_hybrid.json")
+    one_view = Path("results/table2/planned_hidden_fine_residual-1view.json")
     two_views = Path("results/stage2/shield/rl2_seed2_planned.json")
     for views, path in ((1, one_view), (2, two_views)):
         policy = json.loads((REPO / path).read_text())["policy"]
-        assert policy.endswith("policy.pt" + HYBRID[views].describe())
+        assert policy.endswith(".pt" + HYBRID[views].describe())
     guard = HYBRID[1]
     assert isinstance(guard.wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)
+    assert guard.wrap(IKInterpolationPolicy(), 1, 64).depth_key == "fine_depth"
     assert not isinstance(DepthGuard().wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)

@@ -23,6 +23,7 @@ import json
 import shlex
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,8 @@ SECOND_SEED_OFFSET = 2
 """Recipe seed k pools the 1-view run of seed k with the 2-view run of seed k + 2."""
 UPDATES = 24_000
 FAMILIES = ("obstacles", "blocked")
-HYBRID_FLAGS = HYBRID[1].flags()  # the committed 1-view hybrid setting
+HYBRID_64PX_FLAGS = replace(HYBRID[1], fine_depth_size=0).flags()  # session 14's 1-view hybrid
+HYBRID_FLAGS = HYBRID[1].flags()  # the committed one: the shield reads a 128-px depth camera
 ROWS = {
     "student": (
         "CLAMGen, 1 RGBD view, regressed on the pooled data of the 1- and 2-view clearance "
@@ -51,8 +53,15 @@ ROWS = {
     "hybrid": (
         "CLAMGen, 1 RGBD view, shipped `residual-1view` + depth shield keeping the hand out of "
         "unseen space behind seen surfaces + planner on the depth map when stuck (ours)",
-        HYBRID_FLAGS,
+        HYBRID_64PX_FLAGS,
         "planned_hidden_residual-1view.json",
+    ),
+    "hybrid-fine": (
+        "CLAMGen, 1 RGBD view, shipped `residual-1view` + depth shield on a 128-pixel depth camera "
+        "keeping the hand out of unseen space behind seen surfaces + planner on the depth map "
+        "when stuck (ours)",
+        HYBRID_FLAGS,
+        "planned_hidden_fine_residual-1view.json",
     ),
 }
 

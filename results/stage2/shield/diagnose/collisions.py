@@ -40,7 +40,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     policy, _, env_kwargs = load_policy(args.policy)
-    guard = replace(HYBRID[1], shadow_m=args.shadow)  # the committed 1-view hybrid
+    guard = replace(HYBRID[1], shadow_m=args.shadow, fine_depth_size=0)  # session 14's hybrid
     shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
     env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
     scene = env.unwrapped.scene

@@ -5,7 +5,7 @@ screen on the validation episodes where it collided, choosing nothing by itself.
         [--seeds-from results/stage2/shield/diagnose/collisions.jsonl]
 
 The policy acts on its own 64-pixel RGBD view as always; the shield, its unseen-space test and
-the planner (the committed 1-view hybrid, `depth_planner.HYBRID[1]`) get a depth image of
+the planner (session 14's 1-view hybrid: `depth_planner.HYBRID[1]` on 64 px) get a depth image of
 the same camera rendered at `--size` pixels, quantised to 8 bits over the depth range like
 the observation (about 9 mm a step) or, with `--exact-depth`, not quantised. Seeds as in
 `goal_distance.py` (`--family`, `--num-tasks`, `--offset` into the validation range, or
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +60,9 @@ def main() -> None:
     torch.set_num_threads(1)
     policy, _, env_kwargs = load_policy("residual-1view")
     views = env_kwargs["num_views"]
-    shielded = HYBRID[views].wrap(OwnImages(policy), views, args.size)
+    # Session 14's hybrid, here given the finer depth as its images (as `fine_depth` does).
+    guard = replace(HYBRID[views], fine_depth_size=0)
+    shielded = guard.wrap(OwnImages(policy), views, args.size)
     env = ReachEnv(num_obstacles=2, task_family=args.family, **env_kwargs)
     scene = env.unwrapped.scene
     sensor = MultiViewRenderer(scene.model, scene.camera_ids[:views], args.size, args.size)

@@ -56,7 +56,7 @@ def main() -> None:
     depth_shield.TARGET_REACH_M = C.TARGET_RADIUS_M + args.target_filter
     torch.set_num_threads(1)
     policy, _, env_kwargs = load_policy(args.policy)
-    guard = replace(HYBRID[1], margin_m=args.margin)  # the committed 1-view hybrid
+    guard = replace(HYBRID[1], margin_m=args.margin, fine_depth_size=0)  # session 14's hybrid
     shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
     env = ReachEnv(num_obstacles=2, task_family=args.family, **env_kwargs)
     if args.seeds_from:
