@@ -375,8 +375,9 @@ class EvalConfig:
     depth_hybrid: bool = False
     """A vision residual acts as Table 2's hybrid rows: through the depth shield at 1 cm with
     the planner when stuck, and from one view keeping the hand out of unseen space within
-    5 cm behind seen surfaces (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper;
-    the settings chosen on validation tasks). Not with the other --depth-* options."""
+    5 cm behind seen surfaces and reading a 128-pixel depth camera at the view's pose
+    (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper; the settings chosen on
+    validation tasks). Not with the other --depth-* options."""
     depth_shield_m: float | None = None
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen

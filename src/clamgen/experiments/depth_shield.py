@@ -260,7 +260,7 @@ class DepthOccupancy:
         images = np.asarray(images)
         if images.shape[0] != self.shape[0] or images.shape[2:] != self.shape[1:]:
             raise ValueError(
-                f"expected images of shape (V, 4, H, W) with (V, H, W) = {self.shape}, "
+                f"expected images of shape (V, 4 or 1, H, W) with (V, H, W) = {self.shape}, "
                 f"got {images.shape}"
             )
         depth_u8 = images[:, -1].reshape(-1)  # RGBD or depth alone: depth comes last
