@@ -1,0 +1,93 @@
+"""The 2-view hybrid (depth shield + planner on the depth map when stuck) on more training
+seeds of the shipped `residual-2views` recipe. Seed 0 is the shipped policy
+(results/table2/planned_residual-2views.json); seeds 3 and 4 are the 2-view DAgger runs of
+`results/sweeps/shipped-1view.toml` (the same recipe; its seeds 1 and 2 were not kept), each
+evaluated once on the 200 + 200 test tasks with `clamgen eval --depth-hybrid`, choosing
+nothing (planned2_seed<k>.json here; skipped when it exists). Prints, per task family, the
+mean success with rliable's 95% stratified-bootstrap interval and each seed's success and
+collision rate, and writes them to two_view_seeds.txt.
+
+    clamgen sweep results/sweeps/shipped-1view.toml --max-concurrent 1   # the DAgger runs
+    python results/stage2/shield/two_view_seeds.py [--summarize-only]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+from clamgen.experiments.aggregate import aggregate_rows
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[2]
+TABLE2 = ROOT / "results" / "table2"
+RUNS = ROOT / "runs/sweeps/shipped-1view"
+RUN = "clamgen-2-rgbd-views-distilled-from-the-lookahead-teacher-with-3-cm-clearance-ours"
+SEEDS = (3, 4)
+FAMILIES = ("obstacles", "blocked")
+NAME = (
+    "CLAMGen, 2 RGBD views, shipped `residual-2views` + depth shield + planner on the depth map "
+    "when stuck (ours)"
+)
+
+
+def _scores(path: Path) -> dict[str, tuple[float, float]]:
+    rows = json.loads(path.read_text())["rows"]
+    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
+
+
+def _evaluate(seed: int) -> None:
+    out = HERE / f"planned2_seed{seed}"
+    if out.with_suffix(".json").is_file():
+        return
+    policy = RUNS / RUN / f"seed{seed}" / "policy.pt"
+    if not policy.is_file():
+        raise SystemExit(f"{policy} is not trained yet: run the shipped-1view sweep first")
+    command = ["clamgen", "eval", "--table", "2", "--policy", str(policy), "--depth-hybrid"]
+    command += ["--num-tasks", "200", "--name", NAME, "--out", str(out)]
+    print("$", shlex.join(command), flush=True)
+    subprocess.run(command, check=True)
+
+
+def summarize() -> str:
+    found = [(0, _scores(TABLE2 / "planned_residual-2views.json"))]
+    found += [
+        (seed, _scores(HERE / f"planned2_seed{seed}.json"))
+        for seed in SEEDS
+        if (HERE / f"planned2_seed{seed}.json").is_file()
+    ]
+    lines = [f"{NAME}; {len(found)} seeds {[seed for seed, _ in found]}"]
+    for family in FAMILIES:
+        success = np.array([[scores[family][0]] for _, scores in found])
+        collision = [scores[family][1] for _, scores in found]
+        interval = ""
+        if len(found) > 1:
+            mean = aggregate_rows({family: success})[family].mean
+            interval = f" ({mean.low:.3f}-{mean.high:.3f})"
+        lines.append(
+            f"  {family:9s} success mean {success.mean():.3f}{interval}; per seed "
+            f"{', '.join(f'{v:.3f}' for v in success[:, 0])}; collision per seed "
+            f"{', '.join(f'{v:.3f}' for v in collision)} (mean {np.mean(collision):.3f})"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--summarize-only", action="store_true", help="evaluate nothing")
+    args = parser.parse_args()
+    if not args.summarize_only:
+        for seed in SEEDS:
+            _evaluate(seed)
+    text = summarize()
+    print(text)
+    (HERE / "two_view_seeds.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
