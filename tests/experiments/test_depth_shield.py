@@ -285,7 +285,7 @@ def test_hybrid_guards_describe_the_committed_hybrid_rows():
     two_views = Path("results/stage2/shield/rl2_seed2_planned.json")
     for views, path in ((1, one_view), (2, two_views)):
         policy = json.loads((REPO / path).read_text())["policy"]
-        assert policy.endswith(".pt" + HYBRID[views].describe())
+        assert policy.endswith(HYBRID[views].describe())
     guard = HYBRID[1]
     assert isinstance(guard.wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)
     assert guard.wrap(IKInterpolationPolicy(), 1, 64).depth_key == "fine_depth"
