@@ -55,6 +55,9 @@ a lone pixel is not a surface (the renderer leaves a rare stray pixel)."""
 FAR_CLIP_M = C.DEPTH_RANGE_M[1] - 0.05
 """Depth at or beyond the stored range's far end is background."""
 MARGIN_M = 0.01
+SEGMENTS_KEPT = 8
+"""Configurations whose geom axes `ArmCapsules.segments` keeps (a shielded step asks for the
+present joints' several times)."""
 """Clearance the depth shield keeps: about a voxel (chosen on validation tasks)."""
 ARM_REACH_M = 1.2
 """Farther than any point of the arm gets from the base (UR5 reach 0.85 m, and the gripper)."""
@@ -108,6 +111,7 @@ class ArmCapsules:
         # its link (body link{i} carries DH frame i), read off once.
         bodies = [model.body(int(model.geom_bodyid[g])).name for g in self.geoms]
         self._frame = np.array([int(name.removeprefix("link")) - 1 for name in bodies])
+        self._segments: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
         starts, ends = self.segments(ur5.HOME_JOINTS)
         inverse = np.linalg.inv(forward_kinematics(ur5.HOME_JOINTS)[self._frame])
         self._local = np.stack([starts, ends], axis=1)  # (G, 2, 3)
@@ -116,14 +120,24 @@ class ArmCapsules:
         )
 
     def segments(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(starts, ends), each (G, 3), of the geoms' axes at `joints`."""
+        """(starts, ends), each (G, 3), of the geoms' axes at `joints` (read-only: the last few
+        configurations' are kept, as a shielded step asks for the same ones several times)."""
+        key = np.asarray(joints, np.float64).tobytes()
+        if key in self._segments:
+            return self._segments[key]
         data = self.scene.data
         data.qpos[:] = joints
         mujoco.mj_kinematics(self.scene.model, data)
         centres = data.geom_xpos[self.geoms]
         axes = data.geom_xmat[self.geoms].reshape(-1, 3, 3)[:, :, 2]
         offset = axes * self.half_lengths[:, None]
-        return centres - offset, centres + offset
+        starts, ends = centres - offset, centres + offset
+        starts.setflags(write=False)
+        ends.setflags(write=False)
+        if len(self._segments) >= SEGMENTS_KEPT:
+            self._segments.clear()
+        self._segments[key] = starts, ends
+        return starts, ends
 
     def segments_many(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(starts, ends), each (B, G, 3), of the geoms' axes at joints (B, 6), by the
@@ -442,6 +456,12 @@ class ArmShadow:
         )
         # (frame, which shell points it carries), once: the hand's geoms share one link.
         self._shell_groups = [(f, shell_frame == f) for f in np.unique(shell_frame)]
+        # Per group, how far its shell points lie from their frame's origin (a box around the
+        # origins widened by this holds every shell point).
+        self._group_frames = np.array([f for f, _ in self._shell_groups])
+        self._group_radii = np.array(
+            [np.linalg.norm(self._shell[mine], axis=1).max() for _, mine in self._shell_groups]
+        )
         self._reach = arm.radii[self.geoms] + 0.5 * np.sqrt(3.0) * VOXEL_M
         self.deepest = np.full(views * height * width, -np.inf, np.float32)
         self.hides = np.zeros(views * height * width, bool)
@@ -495,13 +515,21 @@ class ArmShadow:
             points[:, mine] = self._shell[mine] @ rotation.transpose(0, 2, 1) + origin
         flat = points.reshape(-1, 3)
         out = np.zeros(len(flat), bool)
-        reach = self.near_m + SHADOW_SPACING_M
-        low, high = flat.min(axis=0) - reach, flat.max(axis=0) + reach
+        # Obstacle points that can lie within `near_m` of the shell: those in a box around
+        # it (around the frames' origins, widened by each group's extent: a superset).
+        origins = frames[:, self._group_frames, :3, 3]  # B, groups, 3
+        widen = (self._group_radii + self.near_m + SHADOW_SPACING_M)[:, None]
+        low, high = (origins - widen).min(axis=(0, 1)), (origins + widen).max(axis=(0, 1))
         obstacle = obstacle[((obstacle > low) & (obstacle < high)).all(axis=1)]
         if len(obstacle):
-            # The cheap tests first: behind a hiding surface in the views, then near seen
-            # obstacle surface, then not filled by the hand before.
-            candidates = np.flatnonzero(self._behind_hiding_surface(flat))
+            # Only shell points in the box around those obstacle points widened by `near_m`
+            # (and a rounding allowance) can be near one. Then the cheap tests first: behind
+            # a hiding surface in the views, then near seen obstacle surface, then not filled
+            # by the hand before.
+            widen = self.near_m + 1e-4
+            box = (flat > obstacle.min(axis=0) - widen) & (flat < obstacle.max(axis=0) + widen)
+            candidates = np.flatnonzero(box.all(axis=1))
+            candidates = candidates[self._behind_hiding_surface(flat[candidates])]
             if len(candidates):
                 gap2 = (
                     (flat[candidates] ** 2).sum(1)[:, None]
