@@ -610,9 +610,11 @@ class DepthClearance:
             return min(value, HIDDEN_CLEARANCE_M)
         return value
 
-    def clearances(self, joints: np.ndarray) -> np.ndarray:
+    def clearances(self, joints: np.ndarray, visible: bool = False) -> np.ndarray:
+        """`clearance` at each of joints (B, 6); `visible`: none of them is known to reach
+        into hidden space (the test is skipped)."""
         values = self.arm.clearances(joints, self.points, cap=self.margin_m)
-        if self.shadow is not None:
+        if self.shadow is not None and not visible:
             values = np.where(
                 self.shadow.hidden(joints, self.points),
                 np.minimum(values, HIDDEN_CLEARANCE_M),
@@ -633,6 +635,7 @@ class DepthClearance:
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
         axes = np.stack([*self.arm.segments(joints), *self.arm.segments(target)])  # 4, G, 3
         lowest = axes[:, :, 2].min(axis=0) - self.arm.radii
+        visible = False  # True once no check of the step is known to reach into hidden space
         if lowest[self.arm.touch_table].min() < C.TABLE_TOP_Z_M + reach:
             return float(self.step_clearances(joints, np.asarray(action)[None])[0])
         if len(self.points) and self.shadow is not None:
@@ -645,6 +648,7 @@ class DepthClearance:
             if ((self.points > low) & (self.points < high)).all(axis=1).any():
                 if self.shadow.hidden(step_checks(joints, action), self.points).any():
                     return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+                visible = True  # (`step_checks` gives `step_checks_many`'s configurations)
         if len(self.points):
             # Per geom, the box around its axis at both ends widened by its radius and reach.
             widen = (self.arm.radii + reach)[:, None]
@@ -652,13 +656,16 @@ class DepthClearance:
             points = self.points  # those in the boxes' union first: usually few or none
             points = points[((points > box_low.min(0)) & (points < box_high.max(0))).all(1)]
             if ((points[:, None] > box_low) & (points[:, None] < box_high)).all(axis=2).any():
-                return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+                return float(self.step_clearances(joints, np.asarray(action)[None], visible)[0])
         return self.margin_m
 
-    def step_clearances(self, joints: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """`shield.step_clearance` of each of actions (A, 6), all checks in one batch: (A,)."""
+    def step_clearances(
+        self, joints: np.ndarray, actions: np.ndarray, visible: bool = False
+    ) -> np.ndarray:
+        """`shield.step_clearance` of each of actions (A, 6), all checks in one batch: (A,);
+        `visible` as for `clearances`."""
         checks, starts = step_checks_many(joints, actions)
-        return np.minimum.reduceat(self.clearances(checks), starts)
+        return np.minimum.reduceat(self.clearances(checks, visible), starts)
 
 
 class DepthShield:
