@@ -326,8 +326,11 @@ class DepthOccupancy:
             off_arm = self._off_arm(points[index], joints)
             index, cells = index[off_arm], cells[off_arm]
         if len(index):
-            others = np.concatenate([points[index], self.points])
-            gaps = np.linalg.norm(points[index, None] - others[None], axis=-1)
+            mine = points[index]
+            low, high = mine.min(axis=0) - SUPPORT_RADIUS_M, mine.max(axis=0) + SUPPORT_RADIUS_M
+            kept = self.points[((self.points > low) & (self.points < high)).all(axis=1)]
+            others = np.concatenate([mine, kept])  # (kept points farther out support none)
+            gaps = np.linalg.norm(mine[:, None] - others[None], axis=-1)
             supported = (gaps < SUPPORT_RADIUS_M).sum(axis=1) >= 2  # (itself and another)
             index, cells = index[supported], cells[supported]
         if len(index) == 0:
