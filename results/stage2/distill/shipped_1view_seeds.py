@@ -26,9 +26,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-from clamgen.experiments.aggregate import aggregate_rows
+from clamgen.experiments.aggregate import seed_lines
 from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
@@ -108,19 +106,7 @@ def summarize(seeds: list[int]) -> str:
             if path.is_file():
                 found.append((seed, _scores(path)))
         lines.append(f"{key}: {name}; {len(found)} seeds {[s for s, _ in found]}")
-        for family in FAMILIES:
-            success = np.array([[scores[family][0]] for _, scores in found])
-            collision = ", ".join(f"{scores[family][1]:.3f}" for _, scores in found)
-            per_seed = ", ".join(f"{v:.3f}" for v in success[:, 0])
-            interval = ""
-            if len(found) > 1:
-                mean = aggregate_rows({family: success})[family].mean
-                interval = f" ({mean.low:.3f}-{mean.high:.3f})"
-            lines.append(
-                f"  {family:9s} success mean {success.mean():.3f}{interval}; per seed "
-                f"{per_seed}; collision per seed {collision} (mean "
-                f"{np.mean([s[family][1] for _, s in found]):.3f})"
-            )
+        lines += seed_lines([scores for _, scores in found], FAMILIES)
     return "\n".join(lines)
 
 

@@ -19,9 +19,7 @@ import shlex
 import subprocess
 from pathlib import Path
 
-import numpy as np
-
-from clamgen.experiments.aggregate import aggregate_rows
+from clamgen.experiments.aggregate import seed_lines
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -62,18 +60,7 @@ def summarize() -> str:
         if (HERE / f"planned2_seed{seed}.json").is_file()
     ]
     lines = [f"{NAME}; {len(found)} seeds {[seed for seed, _ in found]}"]
-    for family in FAMILIES:
-        success = np.array([[scores[family][0]] for _, scores in found])
-        collision = [scores[family][1] for _, scores in found]
-        interval = ""
-        if len(found) > 1:
-            mean = aggregate_rows({family: success})[family].mean
-            interval = f" ({mean.low:.3f}-{mean.high:.3f})"
-        lines.append(
-            f"  {family:9s} success mean {success.mean():.3f}{interval}; per seed "
-            f"{', '.join(f'{v:.3f}' for v in success[:, 0])}; collision per seed "
-            f"{', '.join(f'{v:.3f}' for v in collision)} (mean {np.mean(collision):.3f})"
-        )
+    lines += seed_lines([scores for _, scores in found], FAMILIES)
     return "\n".join(lines)
 
 

@@ -129,6 +129,27 @@ def aggregate_rows(
     return out
 
 
+def seed_lines(runs: Sequence[Mapping[str, tuple[float, float]]], families: Sequence[str]):
+    """One line per task family for a row evaluated on several training seeds, from each
+    seed's {family: (success rate, collision rate)}: the mean success over seeds with its
+    95% stratified-bootstrap interval (`aggregate_rows`; from two seeds), each seed's
+    success and collision rate, and the mean collision rate."""
+    lines = []
+    for family in families:
+        success = np.array([[run[family][0]] for run in runs])
+        collision = [run[family][1] for run in runs]
+        interval = ""
+        if len(runs) > 1:
+            mean = aggregate_rows({family: success})[family].mean
+            interval = f" ({mean.low:.3f}-{mean.high:.3f})"
+        lines.append(
+            f"  {family:9s} success mean {success.mean():.3f}{interval}; per seed "
+            f"{', '.join(f'{v:.3f}' for v in success[:, 0])}; collision per seed "
+            f"{', '.join(f'{v:.3f}' for v in collision)} (mean {np.mean(collision):.3f})"
+        )
+    return lines
+
+
 def probability_of_improvement(
     scores: Mapping[str, np.ndarray],
     pairs: Sequence[tuple[str, str]],

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from diagnosis_seeds import validation_seeds
 from tqdm import tqdm
 
 from clamgen.envs import ReachEnv
-from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import HYBRID
 from clamgen.experiments.policies import load_policy
 from clamgen.sim import constants as C
@@ -77,11 +77,7 @@ def main() -> None:
         images = np.concatenate([rgb.transpose(0, 3, 1, 2), code[:, None]], axis=1)
         return {**obs, "policy_images": obs["images"], "images": images}
 
-    if args.seeds_from:
-        lines = args.seeds_from.read_text().splitlines()
-        seeds = sorted({json.loads(line)["seed"] for line in lines if line.strip()})
-    else:
-        seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + args.offset)
+    seeds = validation_seeds(args.num_tasks, args.offset, args.seeds_from)
     rows = []
     for seed in tqdm(seeds, desc=f"{args.family} validation tasks, shield sees {args.size} px"):
         obs, _ = env.reset(seed=int(seed))

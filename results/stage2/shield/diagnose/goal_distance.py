@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from diagnosis_seeds import validation_seeds
 from tqdm import tqdm
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments import depth_shield
-from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import HYBRID
 from clamgen.experiments.policies import load_policy
 from clamgen.sim import constants as C
@@ -59,11 +59,7 @@ def main() -> None:
     guard = replace(HYBRID[1], margin_m=args.margin, fine_depth_size=0)  # session 14's hybrid
     shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
     env = ReachEnv(num_obstacles=2, task_family=args.family, **env_kwargs)
-    if args.seeds_from:
-        lines = args.seeds_from.read_text().splitlines()
-        seeds = sorted({json.loads(line)["seed"] for line in lines if line.strip()})
-    else:
-        seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + args.offset)
+    seeds = validation_seeds(args.num_tasks, args.offset, args.seeds_from)
     rows = []
     for seed in tqdm(seeds, desc=f"{args.family} validation tasks, margin {args.margin}"):
         obs, _ = env.reset(seed=int(seed))
