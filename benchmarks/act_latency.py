@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,7 @@ from common import write_csv
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import TRAINING_SEEDS
+from clamgen.experiments.depth_planner import HYBRID, DepthGuard
 from clamgen.experiments.policies import load_policy
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,18 +49,20 @@ POLICIES = (
     ("residual-1view", "residual-1view"),
     REFERENCE,
 )
-SHIELD_MARGIN_M = 0.01
-SHADOW_M = 0.05
-"""`clamgen eval --depth-shadow-m 0.05 --depth-shadow-behind-surfaces` as chosen for one view
-(unseen space behind seen surfaces, near them, kept out of)."""
-FINE_DEPTH_SIZE = 128
-"""`clamgen eval --depth-fine-size 128`: the shield reads the depth at 128 pixels a side."""
-SHIELDED = (  # policy, shadow, the shield's depth image size (0: the policy's own)
-    ("residual-3views", None, 0),
-    ("residual-2views", None, 0),
-    ("residual-1view", None, 0),
-    ("residual-1view", SHADOW_M, 0),
-    ("residual-1view", SHADOW_M, FINE_DEPTH_SIZE),
+SHIELD = DepthGuard()
+"""The shield alone (`clamgen eval --depth-shield-m 0.01`)."""
+HIDDEN = replace(HYBRID[1], planner=False, fine_depth_size=0)
+"""With the unseen-space test as chosen for one view (`--depth-shadow-m 0.05
+--depth-shadow-behind-surfaces`)."""
+FINE = replace(HYBRID[1], planner=False)
+"""And the shield reading the 128-pixel depth camera (`--depth-fine-size 128`): the 1-view
+hybrid without its planner."""
+SHIELDED = (
+    ("residual-3views", SHIELD),
+    ("residual-2views", SHIELD),
+    ("residual-1view", SHIELD),
+    ("residual-1view", HIDDEN),
+    ("residual-1view", FINE),
 )
 NUM_EPISODES = 8
 BLOCK = 50  # calls of one policy before switching to the next
@@ -120,20 +124,17 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    from clamgen.experiments.depth_planner import DepthGuard
-
     loaded = {}
     for label, name in POLICIES:
         policy, _, env_kwargs = load_policy(name)
         loaded[label] = (policy, observations(env_kwargs))
-    for name, shadow_m, fine in SHIELDED:
+    for name, guard in SHIELDED:
         policy, _, env_kwargs = load_policy(name)
-        guard = DepthGuard(SHIELD_MARGIN_M, False, shadow_m, shadow_m is not None, 0.0, fine)
         shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
         replay = Replay(shielded, episodes(shielded, env_kwargs | guard.env_kwargs()))
-        label = f"{name} + depth shield ({SHIELD_MARGIN_M} m"
-        label += f", shadow {shadow_m} m" if shadow_m is not None else ""
-        label += f", depth at {fine} px" if fine else ""
+        label = f"{name} + depth shield ({guard.margin_m} m"
+        label += f", shadow {guard.shadow_m} m" if guard.shadow_m is not None else ""
+        label += f", depth at {guard.fine_depth_size} px" if guard.fine_depth_size else ""
         loaded[label + ")"] = (shielded, replay)
     times: dict[str, list[float]] = {label: [] for label in loaded}
     # A shielded policy replays all its recorded steps the same number of times.

@@ -55,9 +55,6 @@ a lone pixel is not a surface (the renderer leaves a rare stray pixel)."""
 FAR_CLIP_M = C.DEPTH_RANGE_M[1] - 0.05
 """Depth at or beyond the stored range's far end is background."""
 MARGIN_M = 0.01
-SEGMENTS_KEPT = 8
-"""Configurations whose geom axes `ArmCapsules.segments` keeps (a shielded step asks for the
-present joints' several times)."""
 """Clearance the depth shield keeps: about a voxel (chosen on validation tasks)."""
 ARM_REACH_M = 1.2
 """Farther than any point of the arm gets from the base (UR5 reach 0.85 m, and the gripper)."""
@@ -111,7 +108,6 @@ class ArmCapsules:
         # its link (body link{i} carries DH frame i), read off once.
         bodies = [model.body(int(model.geom_bodyid[g])).name for g in self.geoms]
         self._frame = np.array([int(name.removeprefix("link")) - 1 for name in bodies])
-        self._segments: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
         starts, ends = self.segments(ur5.HOME_JOINTS)
         inverse = np.linalg.inv(forward_kinematics(ur5.HOME_JOINTS)[self._frame])
         self._local = np.stack([starts, ends], axis=1)  # (G, 2, 3)
@@ -120,24 +116,14 @@ class ArmCapsules:
         )
 
     def segments(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(starts, ends), each (G, 3), of the geoms' axes at `joints` (read-only: the last few
-        configurations' are kept, as a shielded step asks for the same ones several times)."""
-        key = np.asarray(joints, np.float64).tobytes()
-        if key in self._segments:
-            return self._segments[key]
+        """(starts, ends), each (G, 3), of the geoms' axes at `joints`."""
         data = self.scene.data
         data.qpos[:] = joints
         mujoco.mj_kinematics(self.scene.model, data)
         centres = data.geom_xpos[self.geoms]
         axes = data.geom_xmat[self.geoms].reshape(-1, 3, 3)[:, :, 2]
         offset = axes * self.half_lengths[:, None]
-        starts, ends = centres - offset, centres + offset
-        starts.setflags(write=False)
-        ends.setflags(write=False)
-        if len(self._segments) >= SEGMENTS_KEPT:
-            self._segments.clear()
-        self._segments[key] = starts, ends
-        return starts, ends
+        return centres - offset, centres + offset
 
     def segments_many(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(starts, ends), each (B, G, 3), of the geoms' axes at joints (B, 6), by the
