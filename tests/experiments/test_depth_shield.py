@@ -15,7 +15,7 @@ from clamgen.cli import EvalConfig, _depth_guard, _wants_depth_shield, _with_dep
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import TEST_SEEDS
 from clamgen.experiments.depth_planner import HYBRID, DepthGuard, DepthShieldPlanner
-from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield
+from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield, _in_boxes
 from clamgen.experiments.evaluate import evaluate
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles
@@ -146,6 +146,16 @@ def test_shield_on_the_fine_depth_sees_what_a_shield_on_images_that_size_sees():
         np.testing.assert_array_equal(on_fine.checker.points, plain.checker.points)
         obs = fine.step(ik.act(obs))[0]
     fine.close()
+
+
+def test_box_test_by_coordinates_matches_the_box_test_on_whole_points():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (500, 3))
+    points[:50] = np.round(points[:50], 1)  # some on the boxes' faces
+    low, high = rng.uniform(-1.0, 0.0, (7, 3)).round(1), rng.uniform(0.0, 1.0, (7, 3)).round(1)
+    whole = ((points[:, None] > low) & (points[:, None] < high)).all(axis=2)
+    np.testing.assert_array_equal(_in_boxes(points, low, high), whole)
+    np.testing.assert_array_equal(_in_boxes(points, low[0], high[0]), whole[:, 0])
 
 
 def test_arm_clearance_to_points_and_table():

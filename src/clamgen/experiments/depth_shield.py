@@ -74,6 +74,18 @@ GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 not kept."""
 
 
+def _in_boxes(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Whether each of `points` (P, 3) lies strictly between `low` and `high`: (P,) for one box
+    ((3,) bounds), (P, B) for B boxes ((B, 3) bounds). One coordinate at a time: numpy's
+    `all` over a last axis of three costs more than the comparisons themselves."""
+    inside = None
+    for axis in range(3):
+        column = points[:, axis, None] if np.ndim(low) == 2 else points[:, axis]
+        this = (column > low[..., axis]) & (column < high[..., axis])
+        inside = this if inside is None else inside & this
+    return inside
+
+
 def _segment_distance(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """(P, S) distances of points (P, 3) to segments from `starts` to `ends` (S, 3), by
     matrix products (the squared distance expanded; exact to far below a millimetre at arm
@@ -143,8 +155,8 @@ class ArmCapsules:
         reach = (self.radii + cap)[:, None]
         low = np.minimum(starts, ends).min(axis=0) - reach  # G, 3
         high = np.maximum(starts, ends).max(axis=0) + reach
-        points = points[((points > low.min(axis=0)) & (points < high.max(axis=0))).all(axis=1)]
-        point, geom = np.nonzero(((points[:, None] > low) & (points[:, None] < high)).all(axis=2))
+        points = points[_in_boxes(points, low.min(axis=0), high.max(axis=0))]
+        point, geom = np.nonzero(_in_boxes(points, low, high))
         if len(point) == 0:
             return out
         start, axis = starts[:, geom], ends[:, geom] - starts[:, geom]  # B, K, 3
@@ -161,7 +173,7 @@ class ArmCapsules:
         reach = self.radii.max() + reach
         low = np.minimum(starts, ends).min(axis=0) - reach
         high = np.maximum(starts, ends).max(axis=0) + reach
-        return np.flatnonzero(((points > low) & (points < high)).all(axis=1))
+        return np.flatnonzero(_in_boxes(points, low, high))
 
     def clearance(self, joints: np.ndarray, points: np.ndarray, cap: float = np.inf) -> float:
         """Distance (m) of the arm at `joints` to the nearest of `points` (P, 3) or to the table
@@ -282,7 +294,7 @@ class DepthOccupancy:
         """The grid indices (N, 3) of the voxels holding `points` (N, 3), and which of them
         lie inside the grid (N,)."""
         voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
-        return voxels, (voxels >= 0).all(axis=1) & (voxels < self._dims).all(axis=1)
+        return voxels, _in_boxes(voxels, np.full(3, -1), self._dims)
 
     def voxel_centres(self, cells: np.ndarray) -> np.ndarray:
         return GRID_LOW_M + (np.stack(np.unravel_index(cells, self._dims), axis=1) + 0.5) * VOXEL_M
@@ -293,8 +305,8 @@ class DepthOccupancy:
         """Voxels (flat indices) of obstacle surface in `images` not yet kept: lifted points
         above the table, off the target, the pedestal and the arm at `joints`, with another
         such point near."""
-        points, directions, pixels = self.lift(
-            images, changed_only=True, with_rays=True, with_pixels=True
+        points, *directions, pixels = self.lift(
+            images, changed_only=True, with_rays=self.extrude_m > 0, with_pixels=True
         )
         radial2 = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
         off_target = points - np.asarray(goal)
@@ -314,15 +326,19 @@ class DepthOccupancy:
         if len(index):
             mine = points[index]
             low, high = mine.min(axis=0) - SUPPORT_RADIUS_M, mine.max(axis=0) + SUPPORT_RADIUS_M
-            kept = self.points[((self.points > low) & (self.points < high)).all(axis=1)]
+            kept = self.points[_in_boxes(self.points, low, high)]
             others = np.concatenate([mine, kept])  # (kept points farther out support none)
-            gaps = np.linalg.norm(mine[:, None] - others[None], axis=-1)
-            supported = (gaps < SUPPORT_RADIUS_M).sum(axis=1) >= 2  # (itself and another)
+            # Distances coordinate by coordinate: (N, M) arrays, not one (N, M, 3).
+            squared = np.zeros((len(mine), len(others)))
+            for axis in range(3):
+                gap = mine[:, axis, None] - others[:, axis]
+                squared += gap * gap
+            supported = (np.sqrt(squared) < SUPPORT_RADIUS_M).sum(axis=1) >= 2  # (itself, another)
             index, cells = index[supported], cells[supported]
         if len(index) == 0:
             return cells
         if self.extrude_m > 0:
-            behind = self._behind(points[index], directions[index], joints)
+            behind = self._behind(points[index], directions[0][index], joints)
             cells = np.concatenate([cells, behind])
         if self.bridge_m > 0:
             cells = np.concatenate([cells, self._bridges(points[index], pixels[index], goal)])
@@ -477,8 +493,15 @@ class ArmShadow:
             points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
             self.hides[deeper] = ~occupancy._off_arm(points, joints)
         starts, ends = occupancy.arm.segments(joints)
-        self._filled_starts.append(starts[self.geoms])
-        self._filled_ends.append(ends[self.geoms])
+        starts, ends = starts[self.geoms], ends[self.geoms]
+        if (
+            self._filled_starts
+            and np.array_equal(starts, self._filled_starts[-1])
+            and np.array_equal(ends, self._filled_ends[-1])
+        ):
+            return  # the arm stood still (pressed against an obstacle): nothing newly filled
+        self._filled_starts.append(starts)
+        self._filled_ends.append(ends)
 
     def _filled(self, points: np.ndarray) -> np.ndarray:
         """Which of `points` lie in a voxel the distal geoms filled at a configuration seen
@@ -509,15 +532,15 @@ class ArmShadow:
         origins = frames[:, self._group_frames, :3, 3]  # B, groups, 3
         widen = (self._group_radii + self.near_m + SHADOW_SPACING_M)[:, None]
         low, high = (origins - widen).min(axis=(0, 1)), (origins + widen).max(axis=(0, 1))
-        obstacle = obstacle[((obstacle > low) & (obstacle < high)).all(axis=1)]
+        obstacle = obstacle[_in_boxes(obstacle, low, high)]
         if len(obstacle):
             # Only shell points in the box around those obstacle points widened by `near_m`
             # (and a rounding allowance) can be near one. Then the cheap tests first: behind
             # a hiding surface in the views, then near seen obstacle surface, then not filled
             # by the hand before.
             widen = self.near_m + 1e-4
-            box = (flat > obstacle.min(axis=0) - widen) & (flat < obstacle.max(axis=0) + widen)
-            candidates = np.flatnonzero(box.all(axis=1))
+            box = _in_boxes(flat, obstacle.min(axis=0) - widen, obstacle.max(axis=0) + widen)
+            candidates = np.flatnonzero(box)
             candidates = candidates[self._behind_hiding_surface(flat[candidates])]
             if len(candidates):
                 gap2 = (
@@ -634,7 +657,7 @@ class DepthClearance:
             widen = self.arm.radii[hand] + self.shadow.near_m + reach
             low = (axes[:, hand].min(axis=0) - widen[:, None]).min(axis=0)
             high = (axes[:, hand].max(axis=0) + widen[:, None]).max(axis=0)
-            if ((self.points > low) & (self.points < high)).all(axis=1).any():
+            if _in_boxes(self.points, low, high).any():
                 if self.shadow.hidden(step_checks(joints, action), self.points).any():
                     return float(self.step_clearances(joints, np.asarray(action)[None])[0])
                 visible = True  # (`step_checks` gives `step_checks_many`'s configurations)
@@ -643,8 +666,8 @@ class DepthClearance:
             widen = (self.arm.radii + reach)[:, None]
             box_low, box_high = axes.min(axis=0) - widen, axes.max(axis=0) + widen
             points = self.points  # those in the boxes' union first: usually few or none
-            points = points[((points > box_low.min(0)) & (points < box_high.max(0))).all(1)]
-            if ((points[:, None] > box_low) & (points[:, None] < box_high)).all(axis=2).any():
+            points = points[_in_boxes(points, box_low.min(0), box_high.max(0))]
+            if _in_boxes(points, box_low, box_high).any():
                 return float(self.step_clearances(joints, np.asarray(action)[None], visible)[0])
         return self.margin_m
 
