@@ -17,6 +17,7 @@ from clamgen.experiments.config import TEST_SEEDS
 from clamgen.experiments.depth_planner import HYBRID, DepthGuard, DepthShieldPlanner
 from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield, _in_boxes
 from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.tables import _PlanTimeRecorder
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles
 
@@ -210,12 +211,18 @@ def test_planner_on_the_depth_map_reaches_past_the_obstacles(blocked_env):
     from clamgen.experiments.depth_planner import STUCK_STEPS, DepthShieldPlanner
 
     planner = DepthShieldPlanner(Still(), VIEWS, SIZE, margin_m=0.01)
-    records = evaluate(blocked_env, planner, TEST_SEEDS.seeds(3))
+    recorder = _PlanTimeRecorder(planner)
+    records = evaluate(blocked_env, recorder, TEST_SEEDS.seeds(3))
     # It waits out the stuck steps, plans on what the cameras showed, and arrives cleanly.
     assert planner.num_plans >= 3 and planner.num_paths >= 2
     assert sum(r.success for r in records) >= 2
     assert not any(r.collided for r in records)
     assert all(r.steps > STUCK_STEPS for r in records)
+    # Its planning time per task is read when each episode is over, and spent in its acts.
+    times = recorder.finish()
+    assert len(times) == 3 and all(t > 0 for t in times)
+    for time_s, record in zip(times, records, strict=True):
+        assert sum(record.act_times_s) >= time_s
 
 
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():

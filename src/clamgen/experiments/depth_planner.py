@@ -8,7 +8,8 @@ target with OMPL's RRT-Connect (`clamgen.baselines.rrt.plan_joint_path`), on the
 surface the shield has seen so far: a state is valid when the arm keeps the shield's margin
 from that surface and from the table. It follows the path, still through the shield, and
 plans again if it gets stuck once more (at most `MAX_PLANS` plans an episode). Without a path
-the policy keeps acting.
+the policy keeps acting. The planning happens inside `act`, on the step that found the policy
+stuck (up to `PLAN_TIME_S`); `episode_plan_time_s` sums it over the episode.
 
 Nothing privileged is read: the depth images, joints and goal of the observation, the
 cameras' fixed poses and the arm's kinematics. RRT with the full scene model (the `rrt`
@@ -17,6 +18,7 @@ baseline) knows the obstacles exactly; this planner knows only what the cameras 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -41,7 +43,8 @@ MAX_GOAL_CANDIDATES = 4
 
 class DepthShieldPlanner(DepthShield):
     """A vision policy through the depth shield, planning on the depth map when stuck (a
-    `Policy`). After each episode: `num_plans` tried and `num_paths` found, in all.
+    `Policy`). `num_plans` tried and `num_paths` found, in all; `episode_plan_time_s`, the
+    wall-clock time spent planning in the current episode.
 
     `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`,
     `shadow_m`, `shadow_behind_surfaces`, `bridge_m`), passed on as they are.
@@ -77,6 +80,7 @@ class DepthShieldPlanner(DepthShield):
         self.waypoints: np.ndarray | None = None
         self._next = 0
         self._plans = 0
+        self.episode_plan_time_s = 0.0
 
     def reset(self, env: Any | None = None) -> None:
         super().reset(env)
@@ -89,7 +93,9 @@ class DepthShieldPlanner(DepthShield):
         if self._stuck() and self._plans < MAX_PLANS:
             self._plans += 1
             self.num_plans += 1
+            tic = time.perf_counter()
             self.waypoints, self._next = self.plan(joints, goal), 0
+            self.episode_plan_time_s += time.perf_counter() - tic
             self.num_paths += int(self.waypoints is not None)
             self.distances = self.distances[-1:]
         if self.waypoints is not None:

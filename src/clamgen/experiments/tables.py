@@ -211,6 +211,12 @@ class ObstacleRow:
     median_step_ms: float = float("nan")
     plan_time_median_s: float | None = None
     plan_time_p95_s: float | None = None
+    """Planning time per task, for a policy that plans: the RRT baseline before its first
+    action, the depth-map planner while acting (its tasks without a plan count 0 s)."""
+    act_p99_ms: float | None = None
+    act_max_ms: float | None = None
+    """The act time's tail over all steps (a planning step of the depth-map planner is one
+    act); None in rows measured before they were recorded."""
     task_success: list[bool] | None = None
     """Success per task, in seed order."""
     family: str = "obstacles"
@@ -245,19 +251,34 @@ class ObstacleRow:
 
 
 class _PlanTimeRecorder:
-    """Wraps a planning policy to collect its per-episode planning time."""
+    """Wraps a policy to collect its planning time per episode, if it plans: in `reset`
+    (`last_plan_time_s`, the RRT baseline) or while acting (`episode_plan_time_s`, read when
+    the episode is over: at the next reset or `finish`)."""
 
     def __init__(self, policy) -> None:
         self.policy = policy
         self.times: list[float] = []
+        self._acting = False  # an episode of a policy that plans while acting is under way
 
     def reset(self, env=None) -> None:
+        self._close_episode()
         self.policy.reset(env)
         if getattr(self.policy, "last_plan_time_s", None) is not None:
             self.times.append(self.policy.last_plan_time_s)
+        self._acting = hasattr(self.policy, "episode_plan_time_s")
 
     def act(self, obs):
         return self.policy.act(obs)
+
+    def _close_episode(self) -> None:
+        if self._acting:
+            self.times.append(float(self.policy.episode_plan_time_s))
+            self._acting = False
+
+    def finish(self) -> list[float]:
+        """The planning time of every episode run (empty for a policy that does not plan)."""
+        self._close_episode()
+        return self.times
 
 
 def table2_row(
@@ -271,8 +292,10 @@ def table2_row(
     """One Table 2 row: `policy` on `num_tasks` held-out tasks (static targets) of `family`,
     seeds `first_seed`, `first_seed` + 1, ... (test seeds only: a ValueError otherwise).
 
-    For a planner (anything with `last_plan_time_s`) the per-task planning time is reported;
-    it is spent in `reset`, before the first action, and is not part of the act time.
+    For a planner the per-task planning time is reported: for one with `last_plan_time_s`
+    (the RRT baseline) it is spent in `reset`, before the first action, and is not part of the
+    act time; for one with `episode_plan_time_s` (the depth-map planner) it is spent in the
+    acts that plan, and is part of their act time.
     """
     if family not in TABLE2_FAMILIES:
         raise ValueError(f"family must be one of {TABLE2_FAMILIES}, got {family!r}")
@@ -281,7 +304,9 @@ def table2_row(
     recorder = _PlanTimeRecorder(policy)
     records = evaluate(env, recorder, seeds)
     env.close()
-    times = np.array(recorder.times) if recorder.times else None
+    times = recorder.finish()
+    times = np.array(times) if times else None
+    act_ms = np.concatenate([r.act_times_s for r in records]) * 1e3
     return ObstacleRow(
         name=name,
         num_tasks=num_tasks,
@@ -289,10 +314,12 @@ def table2_row(
         collision_rate=float(np.mean([r.collided for r in records])),
         reach_rate=float(np.mean([r.reached for r in records])),
         mean_tip_path_m=float(np.mean([r.tip_path_m for r in records])),
-        median_act_ms=float(np.median(np.concatenate([r.act_times_s for r in records])) * 1e3),
+        median_act_ms=float(np.median(act_ms)),
         median_step_ms=float(np.median(np.concatenate([r.step_times_s for r in records])) * 1e3),
         plan_time_median_s=None if times is None else float(np.median(times)),
         plan_time_p95_s=None if times is None else float(np.percentile(times, 95)),
+        act_p99_ms=float(np.percentile(act_ms, 99)),
+        act_max_ms=float(act_ms.max()),
         task_success=[bool(r.success) for r in records],
         family=family,
         first_seed=int(seeds[0]),
