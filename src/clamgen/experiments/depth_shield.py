@@ -68,6 +68,8 @@ SHADOW_TOLERANCE_M = 0.01
 stored depth's step is 8.6 mm)."""
 HIDDEN_CLEARANCE_M = -0.01
 """The clearance `DepthClearance` gives a configuration that reaches into hidden space."""
+DEPTH_OF_CODE = uint8_to_depth(np.arange(256, dtype=np.uint8))
+"""Metric depth of each stored depth code (the same values as `uint8_to_depth`, looked up)."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -231,6 +233,7 @@ class DepthOccupancy:
         self.directions = self.rays / np.linalg.norm(self.rays, axis=1, keepdims=True)
         origins = scene.data.cam_xpos[scene.camera_ids[:num_views]].astype(np.float32)
         self.origins = np.repeat(origins, height * width, axis=0)
+        self._heights = (self.origins[:, 2].copy(), self.rays[:, 2].copy())  # z, contiguous
         self.shape = (num_views, height, width)
         self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
         self._grid = np.zeros(int(np.prod(self._dims)), bool)
@@ -282,8 +285,8 @@ class DepthOccupancy:
             pixels = np.arange(len(depth_u8))
         if changed_only:
             self._last_depth = depth_u8.copy()
-        depth = uint8_to_depth(depth_u8[pixels])
-        height = self.origins[pixels, 2] + depth * self.rays[pixels, 2]
+        depth = DEPTH_OF_CODE[depth_u8[pixels]]
+        height = self._heights[0][pixels] + depth * self._heights[1][pixels]
         valid = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
         depth, keep = depth[valid], pixels[valid]
         points = (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
@@ -469,11 +472,13 @@ class ArmShadow:
         )
         self._reach = arm.radii[self.geoms] + 0.5 * np.sqrt(3.0) * VOXEL_M
         self.deepest = np.full(views * height * width, -np.inf, np.float32)
+        self._deepest_code = np.full(views * height * width, -1, np.int16)  # (-1: none yet)
         self.hides = np.zeros(views * height * width, bool)
         self.reset()
 
     def reset(self) -> None:
         self.deepest[:] = -np.inf
+        self._deepest_code[:] = -1
         self.hides[:] = False
         # The distal geoms' axes at every configuration seen this episode: the space they
         # filled (voxels whose centre lies within a half diagonal of a geom) is free.
@@ -484,13 +489,15 @@ class ArmShadow:
         """Deepen each pixel's seen depth with `images` (taken at `joints`) and take the space
         the distal geoms fill as free."""
         occupancy = self.occupancy
-        depth = uint8_to_depth(np.asarray(images)[:, -1].reshape(-1))
-        deeper = np.flatnonzero(depth > self.deepest)
-        self.deepest[deeper] = depth[deeper]
+        code = np.asarray(images)[:, -1].reshape(-1)
+        deeper = np.flatnonzero(code > self._deepest_code)  # depth grows with its code
+        self._deepest_code[deeper] = code[deeper]
+        depth = DEPTH_OF_CODE[code[deeper]]
+        self.deepest[deeper] = depth
         if self.behind_surfaces:  # any surface seen hides what lies behind it
-            self.hides[deeper] = depth[deeper] < FAR_CLIP_M
+            self.hides[deeper] = depth < FAR_CLIP_M
         else:  # only the arm does
-            points = occupancy.origins[deeper] + depth[deeper, None] * occupancy.rays[deeper]
+            points = occupancy.origins[deeper] + depth[:, None] * occupancy.rays[deeper]
             self.hides[deeper] = ~occupancy._off_arm(points, joints)
         starts, ends = occupancy.arm.segments(joints)
         starts, ends = starts[self.geoms], ends[self.geoms]
