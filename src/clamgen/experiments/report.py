@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import json
+import textwrap
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +46,9 @@ from clamgen.experiments.tables import (
 # the legend's 8-point text fit across the 18-inch figure.
 LEGEND_COLUMNS = 3
 LEGEND_CHARACTERS = 300
+# Row names longer than this wrap onto further lines beside panel (a), which would otherwise
+# take most of the figure's width.
+TICK_LABEL_CHARACTERS = 70
 CURVE_METRIC = "eval/success_rate"
 # Task families, one figure and one aggregate table each; conditions are what a run's score
 # is split over (Table 1: the target speeds; Table 2: one family each).
@@ -447,10 +451,13 @@ def _darken(colour: Any) -> tuple[float, ...]:
 def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> Path:
     """Sample-efficiency curves (validation), test success over runs, performance profiles."""
     n = len(result.rows)
+    labels = [textwrap.fill(row, TICK_LABEL_CHARACTERS) for row in result.rows]
+    # Rows stand far enough apart for the tallest wrapped label (8-point lines, 0.14 inch).
+    row_inches = max(0.32, 0.14 * max(label.count("\n") + 1 for label in labels))
     # The success panel, whose tick labels are the long row names, comes first so that the
     # layout gives them the figure's left margin; constrained layout keeps every title inside.
     fig, (success_ax, curves_ax, profile_ax) = plt.subplots(
-        1, 3, figsize=(18, max(5.5, 2.6 + 0.32 * n)), layout="constrained",
+        1, 3, figsize=(18, max(5.5, 2.6 + row_inches * n)), layout="constrained",
         gridspec_kw={"width_ratios": [1, 1.1, 1]},
     )  # fmt: skip
     fig.suptitle(FAMILIES[result.family], fontsize=13)
@@ -493,7 +500,7 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
         paper = _paper_value(row, result.family)
         if paper is not None:
             success_ax.scatter([paper], [yi], marker="x", color="black", s=30, zorder=3)
-    success_ax.set_yticks(y, result.rows, fontsize=8)
+    success_ax.set_yticks(y, labels, fontsize=8)
     for tick, row in zip(success_ax.get_yticklabels(), result.rows, strict=True):
         tick.set_color(_darken(colours[row]))
     success_ax.set_xlim(-0.02, 1.12)
@@ -523,11 +530,13 @@ def plot_family(result: FamilyAggregate, colours: dict[str, Any], out: Path) -> 
     profile_ax.set_ylabel("fraction of runs with success > tau")
     profile_ax.set_ylim(-0.02, 1.02)
     profile_ax.grid(alpha=0.3)
-    handles = [plt.Line2D([], [], color=colours[r], lw=3) for r in result.rows]
+    # The legend names the lines of (b) and (c); (a) names its rows itself.
+    drawn = [r for r in result.rows if r in result.curves or r in profiled]
+    handles = [plt.Line2D([], [], color=colours[r], lw=3) for r in drawn]
     # As many columns (at most three) as the longest row name lets fit in the figure's width.
-    fitting = LEGEND_CHARACTERS // (max(len(r) for r in result.rows) + 8)
-    columns = max(1, min(LEGEND_COLUMNS, n, fitting))
-    fig.legend(handles, result.rows, loc="outside lower center", ncol=columns, fontsize=8,
+    fitting = LEGEND_CHARACTERS // (max(len(r) for r in drawn) + 8)
+    columns = max(1, min(LEGEND_COLUMNS, len(drawn), fitting))
+    fig.legend(handles, drawn, loc="outside lower center", ncol=columns, fontsize=8,
                frameon=False)  # fmt: skip
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, bbox_inches="tight")
