@@ -323,6 +323,19 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         "4",
     )
     assert "--depth-fine-size must be 0 or 8..1024, got 4" in message
+    message = refused(
+        workdir,
+        "eval",
+        "--table",
+        "2",
+        "--policy",
+        "residual-1view",
+        "--depth-shield-m",
+        "0.01",
+        "--depth-plan-checks",
+        "5000",
+    )
+    assert "--depth-plan-checks needs --depth-planner" in message
     message = refused(workdir, "eval", "--table", "2", "--policy", "base", "--depth-hybrid")
     assert "the depth shield needs a vision residual" in message
 

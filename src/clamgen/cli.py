@@ -404,6 +404,10 @@ class EvalConfig:
     the same poses, rendered at this many pixels a side (`ReachEnv(fine_depth_size=...)`, an
     extra sensor, beyond the paper); the policy still acts on its own images. 0: the
     policy's own images."""
+    depth_plan_checks: int = 0
+    """With --depth-planner: each plan may spend this many validity checks instead of 1 s, so
+    that the episodes do not depend on the machine's speed or load (about 10,000 checks a
+    second on one core here; `depth_planner.DepthShieldPlanner`). 0: the time budget."""
 
 
 TABLE2_ROW_NAMES = {
@@ -513,6 +517,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_shadow_behind_surfaces
         or config.depth_bridge_m != 0
         or config.depth_fine_size != 0
+        or config.depth_plan_checks != 0
     )
 
 
@@ -563,6 +568,8 @@ def _depth_guard(config):
             raise SystemExit("--depth-bridge-m needs --depth-shield-m (the map it adds to)")
         if config.depth_fine_size != 0:
             raise SystemExit("--depth-fine-size needs --depth-shield-m (the shield that reads it)")
+        if config.depth_plan_checks != 0 and not planner:
+            raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
         raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     if shadow_m is not None and not 0 < shadow_m < float("inf"):
         raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")
@@ -573,7 +580,12 @@ def _depth_guard(config):
     fine = config.depth_fine_size
     if fine != 0 and not 8 <= fine <= MAX_IMAGE_SIZE:
         raise SystemExit(f"--depth-fine-size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine}")
-    return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine)
+    checks = config.depth_plan_checks
+    if checks != 0 and not planner:
+        raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
+    if checks < 0:
+        raise SystemExit(f"--depth-plan-checks must be >= 0, got {checks}")
+    return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine, checks)
 
 
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):

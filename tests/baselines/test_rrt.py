@@ -1,6 +1,7 @@
 """RRT baseline: collision-free plans, executed successfully, honest failures, time limits."""
 
 import time
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -188,6 +189,44 @@ def test_same_seed_same_plan():
     second.reset(env)
     np.testing.assert_array_equal(first.waypoints, second.waypoints)
     env.close()
+
+
+def test_a_budget_in_checks_makes_the_plan_independent_of_the_checks_speed():
+    """A joint-space wall between start and goal; the same plan when each check is slow."""
+    start, goal = np.zeros(6), np.array([2.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def wall(q: np.ndarray) -> bool:
+        return not (abs(q[0] - 1.0) < 0.2 and abs(q[1]) < 0.8)
+
+    def slow_wall(q: np.ndarray) -> bool:
+        end = time.perf_counter() + 2e-5
+        while time.perf_counter() < end:
+            pass
+        return wall(q)
+
+    config = RRTConfig(max_checks=3000, simplify_max_checks=300, joint_window_rad=1.0)
+    fast = plan_joint_path(wall, start, goal, config)
+    slow = plan_joint_path(slow_wall, start, goal, config)
+    assert fast.succeeded and slow.succeeded
+    np.testing.assert_array_equal(fast.waypoints, slow.waypoints)
+    assert path_is_valid(wall, fast.waypoints, 0.002)
+    # Without the simplification (which makes one full round whatever its budget): start and
+    # goal, the search (it may finish the iteration it is in when its budget runs out), the
+    # final re-checks of the path's states and along it.
+    calls = []
+
+    def counted(q: np.ndarray) -> bool:
+        calls.append(q)
+        return wall(q)
+
+    plain = plan_joint_path(counted, start, goal, replace(config, simplify=False))
+    along = path_length_rad(plain.waypoints) / config.validation_resolution_rad
+    assert len(calls) <= 2 + 3000 + 500 + 2 * len(plain.waypoints) + along
+    # A budget too small to get round the wall fails at once.
+    tiny = plan_joint_path(wall, start, goal, RRTConfig(max_checks=5, joint_window_rad=1.0))
+    assert not tiny.succeeded and tiny.solve_time_s < 0.5
+    with pytest.raises(ValueError):
+        RRTConfig(max_checks=0)
 
 
 # ------------------------------------------------------------------------------- failures

@@ -284,7 +284,7 @@ def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
 @pytest.mark.parametrize("views", sorted(HYBRID))
 def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     guard = HYBRID[views]
-    finer = DepthGuard(0.02, True, 0.05, False, 0.03, 128)
+    finer = DepthGuard(0.02, True, 0.05, False, 0.03, 128, 5000)
     for each in (guard, finer):
         config = tyro.cli(EvalConfig, args=["--table", "2", *each.flags()])
         assert _depth_guard(config) == each

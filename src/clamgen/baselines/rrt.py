@@ -77,6 +77,13 @@ class RRTConfig:
     range_rad: float | None = None
     """RRTConnect's maximum extension per step (L2 in joint space, radians); None: OMPL's default,
     0.2 x the space's maximum extent."""
+    max_checks: int | None = None
+    """When set, RRTConnect stops after this many validity checks instead of at
+    `time_limit_s`. With `seed` (and `simplify_max_checks`), a plan then does not depend on
+    the machine's speed or load."""
+    simplify_max_checks: int | None = None
+    """When set, the simplification stops after this many validity checks instead of at
+    `simplify_time_s`."""
     seed: int | None = 1
     """Seed of OMPL's random number generators, re-applied before every plan so that a task's
     plan does not depend on the episodes before it (>= 1: OMPL ignores 0). None: not seeded.
@@ -102,6 +109,10 @@ class RRTConfig:
             raise ValueError(f"joint_window_rad must be > 0 or None, got {self.joint_window_rad}")
         if self.range_rad is not None and not self.range_rad > 0:
             raise ValueError(f"range_rad must be > 0 or None, got {self.range_rad}")
+        for name in ("max_checks", "simplify_max_checks"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be >= 1 or None, got {value}")
         if self.seed is not None and self.seed < 1:
             raise ValueError(f"seed must be >= 1 (OMPL ignores 0) or None, got {self.seed}")
 
@@ -225,6 +236,7 @@ def plan_joint_path(
     goal: np.ndarray,
     config: RRTConfig = RRTConfig(),
     time_limit_s: float | None = None,
+    max_checks: int | None = None,
 ) -> PlanResult:
     """Plan a collision-free joint path from `start` to `goal` with OMPL's RRTConnect.
 
@@ -234,6 +246,8 @@ def plan_joint_path(
         start, goal: (6,) joint configurations, radians.
         config: resolutions, simplification, bounds and seed (see `RRTConfig`).
         time_limit_s: RRTConnect's time limit, seconds (default `config.time_limit_s`).
+        max_checks: RRTConnect's budget of validity checks instead (default
+            `config.max_checks`; None: the time limit).
 
     Returns:
         A `PlanResult`; only an exact solution that passes the final fine re-check succeeds.
@@ -263,7 +277,13 @@ def plan_joint_path(
 
     si = ob.SpaceInformation(space)
     # OMPL 2 (nanobind) takes a plain Python callable; states index like sequences.
-    si.setStateValidityChecker(lambda state: bool(is_valid(np.array(state[0:6]))))
+    checks = [0]  # validity checks so far, for the budgets in checks
+
+    def counted(state) -> bool:
+        checks[0] += 1
+        return bool(is_valid(np.array(state[0:6])))
+
+    si.setStateValidityChecker(counted)
     si.setStateValidityCheckingResolution(
         validity_resolution_fraction(config.check_resolution_rad, space.getMaximumExtent())
     )
@@ -281,8 +301,13 @@ def plan_joint_path(
     planner.setup()
 
     tic = time.perf_counter()
-    # A plain timed condition: `solve(seconds)` adds a watchdog thread for limits >= 1 s.
-    status = planner.solve(ob.timedPlannerTerminationCondition(max(time_limit_s, 0.0)))
+    max_checks = config.max_checks if max_checks is None else max_checks
+    if max_checks is None:
+        # A plain timed condition: `solve(seconds)` adds a watchdog thread for limits >= 1 s.
+        condition = ob.timedPlannerTerminationCondition(max(time_limit_s, 0.0))
+    else:
+        condition = _checks_condition(ob, checks, max_checks)
+    status = planner.solve(condition)
     solve_time_s = time.perf_counter() - tic
     status_name = status.asString()
     # bool(status) is also True for APPROXIMATE_SOLUTION, which RRTConnect reports on timeout
@@ -292,7 +317,10 @@ def plan_joint_path(
 
     path = pdef.getSolutionPath()
     if config.simplify:
-        og.PathSimplifier(si).simplify(path, config.simplify_time_s)
+        limit = config.simplify_time_s
+        if config.simplify_max_checks is not None:
+            limit = _checks_condition(ob, checks, config.simplify_max_checks)
+        og.PathSimplifier(si).simplify(path, limit)
     states = np.array([path.getState(i)[0:6] for i in range(path.getStateCount())])
     # The simplifier checks its own edits; check the result once more with OMPL's validator,
     # then independently and more finely along the path the policy will actually execute.
@@ -305,6 +333,13 @@ def plan_joint_path(
     ):
         return PlanResult(None, "Invalid path", solve_time_s)
     return PlanResult(waypoints, status_name, solve_time_s)
+
+
+def _checks_condition(ob: Any, checks: list[int], budget: int) -> Any:
+    """A termination condition that holds once `budget` more validity checks are counted in
+    `checks[0]` (OMPL asks it between its iterations)."""
+    limit = checks[0] + max(int(budget), 0)
+    return ob.PlannerTerminationCondition(lambda: checks[0] >= limit)
 
 
 def goal_candidates(

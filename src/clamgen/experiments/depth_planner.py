@@ -26,7 +26,11 @@ from typing import Any
 import numpy as np
 
 from clamgen.baselines.rrt import WAYPOINT_REACHED_TOL_RAD, RRTConfig, plan_joint_path
-from clamgen.envs.reach_env import MAX_JOINT_DELTA_RAD, SUCCESS_DISTANCE_M
+from clamgen.envs.reach_env import (
+    COLLISION_CHECK_RESOLUTION_RAD,
+    MAX_JOINT_DELTA_RAD,
+    SUCCESS_DISTANCE_M,
+)
 from clamgen.experiments.depth_shield import MARGIN_M, DepthShield
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import solve_tip_position, wrap_joints
@@ -39,6 +43,14 @@ MAX_PLANS = 3
 PLAN_TIME_S = 1.0
 """RRT-Connect's budget per plan, shared by the goal candidates."""
 MAX_GOAL_CANDIDATES = 4
+SIMPLIFY_CHECKS = 1_000
+"""With a budget in checks (`plan_checks`): the simplification's budget, also in checks (about
+0.1 s of checks on the depth map on one core here, half the time-budgeted simplification's
+0.2 s)."""
+RECHECK_RESOLUTION_RAD = COLLISION_CHECK_RESOLUTION_RAD
+"""With a budget in checks: the found path is re-checked at the env's own collision-check
+resolution (the shield checks every step of it again as the arm follows it), instead of the
+RRT baseline's finer 0.002 rad."""
 
 
 class DepthShieldPlanner(DepthShield):
@@ -46,8 +58,12 @@ class DepthShieldPlanner(DepthShield):
     `Policy`). `num_plans` tried and `num_paths` found, in all; `episode_plan_time_s`, the
     wall-clock time spent planning in the current episode.
 
-    `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`,
-    `shadow_m`, `shadow_behind_surfaces`, `bridge_m`), passed on as they are.
+    `plan_checks` > 0: each plan may spend this many validity checks (shared by the goal
+    candidates) instead of `PLAN_TIME_S`, the simplification `SIMPLIFY_CHECKS`, and the path
+    is re-checked at `RECHECK_RESOLUTION_RAD`: the plans, and so the episodes, then do not
+    depend on the machine's speed or load. `shield_options`: the rest of `DepthShield`'s
+    options (`sliding`, `extrude_m`, `shadow_m`, `shadow_behind_surfaces`, `bridge_m`,
+    `fine_depth_size`), passed on as they are.
     """
 
     def __init__(
@@ -60,6 +76,7 @@ class DepthShieldPlanner(DepthShield):
         stuck_steps: int = STUCK_STEPS,
         rrt: RRTConfig | None = None,
         plan_margin_m: float | None = None,
+        plan_checks: int = 0,
         **shield_options: Any,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
@@ -69,8 +86,17 @@ class DepthShieldPlanner(DepthShield):
         if stuck_steps < 1:
             raise ValueError(f"stuck_steps must be >= 1, got {stuck_steps}")
         self.stuck_steps = stuck_steps
+        if plan_checks < 0:
+            raise ValueError(f"plan_checks must be >= 0, got {plan_checks}")
         base = rrt if rrt is not None else RRTConfig()
         self.rrt = replace(base, time_limit_s=PLAN_TIME_S, max_goal_candidates=MAX_GOAL_CANDIDATES)
+        if plan_checks:
+            self.rrt = replace(
+                self.rrt,
+                max_checks=plan_checks,
+                simplify_max_checks=SIMPLIFY_CHECKS,
+                validation_resolution_rad=RECHECK_RESOLUTION_RAD,
+            )
         self.num_plans = 0
         self.num_paths = 0
         self._reset_episode()
@@ -142,9 +168,10 @@ class DepthShieldPlanner(DepthShield):
         order = np.argsort(np.max(np.abs(solutions - joints), axis=1), kind="stable")
         candidates = solutions[order][: self.rrt.max_goal_candidates]
         budget = self.rrt.time_limit_s / max(1, len(candidates))
+        checks = None if self.rrt.max_checks is None else self.rrt.max_checks // len(candidates)
         for target in candidates:
             result = plan_joint_path(
-                lambda q: clearance(q) >= keep, joints, target, self.rrt, budget
+                lambda q: clearance(q) >= keep, joints, target, self.rrt, budget, checks
             )
             if result.succeeded:
                 return result.waypoints
@@ -158,8 +185,9 @@ class DepthGuard:
     of hidden space within that distance of seen obstacle surface (behind the arm, or with
     `shadow_behind_surfaces` behind any surface), with `bridge_m` joining neighbouring
     pixels' surface, with `fine_depth_size` reading the views' depth from a finer depth
-    camera at the same poses (the env's `fine_depth`, see `env_kwargs`). The fields are
-    `clamgen eval|render`'s `--depth-*` options."""
+    camera at the same poses (the env's `fine_depth`, see `env_kwargs`), with `plan_checks`
+    > 0 giving the planner a budget in validity checks instead of time (`DepthShieldPlanner`).
+    The fields are `clamgen eval|render`'s `--depth-*` options."""
 
     margin_m: float = MARGIN_M
     planner: bool = False
@@ -167,6 +195,7 @@ class DepthGuard:
     shadow_behind_surfaces: bool = False
     bridge_m: float = 0.0
     fine_depth_size: int = 0
+    plan_checks: int = 0
 
     def env_kwargs(self) -> dict[str, int]:
         """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
@@ -175,11 +204,13 @@ class DepthGuard:
     def wrap(self, policy, num_views: int, image_size: int) -> DepthShield:
         """`policy` acting through this guard (a ValueError for bad settings)."""
         wrapper = DepthShieldPlanner if self.planner else DepthShield
+        planning = {"plan_checks": self.plan_checks} if self.planner else {}
         return wrapper(
             policy,
             num_views,
             image_size,
             self.margin_m,
+            **planning,
             shadow_m=self.shadow_m,
             shadow_behind_surfaces=self.shadow_behind_surfaces,
             bridge_m=self.bridge_m,
@@ -195,6 +226,7 @@ class DepthGuard:
             flags += ["--depth-shadow-behind-surfaces"] if self.shadow_behind_surfaces else []
         flags += ["--depth-bridge-m", str(self.bridge_m)] if self.bridge_m else []
         flags += ["--depth-fine-size", str(self.fine_depth_size)] if self.fine_depth_size else []
+        flags += ["--depth-plan-checks", str(self.plan_checks)] if self.plan_checks else []
         return tuple(flags)
 
     def describe(self) -> str:
@@ -205,7 +237,8 @@ class DepthGuard:
             text += f", {behind}'s shadow within {self.shadow_m} m"
         text += f", pixels bridged up to {self.bridge_m} m" if self.bridge_m else ""
         text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
-        return text + ")" + (" + planner when stuck" if self.planner else "")
+        checks = f" ({self.plan_checks} checks a plan)" if self.plan_checks else ""
+        return text + ")" + (f" + planner when stuck{checks}" if self.planner else "")
 
 
 HYBRID = {

@@ -74,6 +74,9 @@ class RenderConfig:
     depth_fine_size: int = 0
     """With --depth-shield-m: the shield reads a finer depth camera at this size, as
     `clamgen eval --depth-fine-size`. 0: the policy's own images."""
+    depth_plan_checks: int = 0
+    """With --depth-planner: a budget of this many validity checks a plan instead of 1 s, as
+    `clamgen eval --depth-plan-checks`. 0: the time budget."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
