@@ -1,0 +1,129 @@
+"""The hybrids with the planner's budget in validity checks instead of time, on validation
+tasks: does the deterministic budget keep their success and collisions, and shorten the
+longest planning steps? (Protocol in README.md, session 18.)
+
+    python results/stage2/shield/plan_budget.py --setting time     # the committed hybrids
+    python results/stage2/shield/plan_budget.py --setting checks   # --depth-plan-checks 10000
+
+Each hybrid (`depth_planner.HYBRID[v]`, v = 3, 2, 1 views, with the shipped policies) acts on
+`--num-blocked` blocked and `--num-standard` standard validation tasks from `--offset` into
+the validation range; the same tasks for both settings. Appends one JSON line per (views,
+family) to plan_budget_SETTING.jsonl (per task: success, collision, steps, longest act; per run: the
+act time's median, 99th percentile and maximum) and skips what is there; `--summary` prints
+the comparison from that file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import VALIDATION_SEEDS
+from clamgen.experiments.depth_planner import HYBRID
+from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.policies import load_policy
+
+HERE = Path(__file__).resolve().parent
+PLAN_CHECKS = 10_000
+"""About the time budget's 1 s of checks on the depth map on one core here (measured: 9,000-
+12,000 checks a second, simplification and re-check included)."""
+SETTINGS = {
+    "time": lambda views: HYBRID[views],
+    "checks": lambda views: replace(HYBRID[views], plan_checks=PLAN_CHECKS),
+}
+POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
+
+
+def out(setting: str) -> Path:
+    return HERE / f"plan_budget_{setting}.jsonl"
+
+
+def done() -> list[dict]:
+    files = [out(setting) for setting in SETTINGS if out(setting).exists()]
+    return [json.loads(line) for f in files for line in f.read_text().splitlines() if line]
+
+
+def run(setting: str, views: int, family: str, seeds: list[int]) -> dict:
+    guard = SETTINGS[setting](views)
+    policy, _, env_kwargs = load_policy(POLICIES[views])
+    hybrid = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
+    env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs, **guard.env_kwargs())
+    records = evaluate(env, hybrid, seeds)
+    env.close()
+    acts = np.concatenate([r.act_times_s for r in records]) * 1e3
+    return {
+        "setting": setting,
+        "views": views,
+        "family": family,
+        "flags": list(guard.flags()),
+        "seeds": seeds,
+        "success": [bool(r.success) for r in records],
+        "collided": [bool(r.collided) for r in records],
+        "steps": [int(r.steps) for r in records],
+        "longest_act_ms": [float(max(r.act_times_s) * 1e3) for r in records],
+        "act_median_ms": float(np.median(acts)),
+        "act_p99_ms": float(np.percentile(acts, 99)),
+        "act_max_ms": float(acts.max()),
+    }
+
+
+def summary(lines: list[dict]) -> None:
+    by = {(line["setting"], line["views"], line["family"]): line for line in lines}
+    for views in (3, 2, 1):
+        for family in ("blocked", "obstacles"):
+            cells = []
+            for setting in SETTINGS:
+                line = by.get((setting, views, family))
+                if line is None:
+                    cells.append(f"{setting}: -")
+                    continue
+                cells.append(
+                    f"{setting}: success {np.mean(line['success']):.3f} "
+                    f"collisions {np.mean(line['collided']):.3f} "
+                    f"act median {line['act_median_ms']:.2f} ms p99 {line['act_p99_ms']:.0f} ms "
+                    f"max {line['act_max_ms'] / 1e3:.2f} s"
+                )
+            both = [by.get((s, views, family)) for s in SETTINGS]
+            if all(both):
+                same = np.mean(np.equal(both[0]["success"], both[1]["success"]))
+                cells.append(f"same outcome on {same:.3f} of {len(both[0]['success'])} tasks")
+            print(f"{views} view(s), {family}: " + "; ".join(cells))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--setting", choices=tuple(SETTINGS), default="time")
+    parser.add_argument("--views", type=int, nargs="+", default=[3, 2, 1])
+    parser.add_argument("--num-blocked", type=int, default=300)
+    parser.add_argument("--num-standard", type=int, default=100)
+    parser.add_argument("--offset", type=int, default=40_000)
+    parser.add_argument("--summary", action="store_true", help="only print the comparison")
+    args = parser.parse_args()
+    if not args.summary:
+        torch.set_num_threads(1)
+        first = VALIDATION_SEEDS.start + args.offset
+        counts = {"blocked": args.num_blocked, "obstacles": args.num_standard}
+        for views in args.views:
+            for family, count in counts.items():
+                if any(
+                    (line["setting"], line["views"], line["family"])
+                    == (args.setting, views, family)
+                    for line in done()
+                ):
+                    continue
+                seeds = [int(s) for s in VALIDATION_SEEDS.seeds(count, first)]
+                line = run(args.setting, views, family, seeds)
+                with out(args.setting).open("a") as f:
+                    f.write(json.dumps(line) + "\n")
+                print(f"{args.setting}, {views} view(s), {family}: done", flush=True)
+    summary(done())
+
+
+if __name__ == "__main__":
+    main()
