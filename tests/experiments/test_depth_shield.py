@@ -225,6 +225,24 @@ def test_planner_on_the_depth_map_reaches_past_the_obstacles(blocked_env):
         assert sum(record.act_times_s) >= time_s
 
 
+def test_planner_with_a_budget_in_checks_reaches_past_the_obstacles_the_same_way_twice(
+    blocked_env,
+):
+    pytest.importorskip("ompl.base")
+    from clamgen.experiments.depth_planner import DepthShieldPlanner
+
+    runs = []
+    for _ in range(2):
+        planner = DepthShieldPlanner(Still(), VIEWS, SIZE, margin_m=0.01, plan_checks=10_000)
+        assert planner.rrt.max_checks == 10_000 and planner.rrt.simplify_max_checks
+        records = evaluate(blocked_env, planner, TEST_SEEDS.seeds(3))
+        assert planner.num_paths >= 2 and not any(r.collided for r in records)
+        runs.append([(r.success, r.steps, r.tip_path_m) for r in records])
+    assert runs[0] == runs[1]
+    with pytest.raises(ValueError):
+        DepthShieldPlanner(Still(), VIEWS, SIZE, plan_checks=-1)
+
+
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
     from clamgen.experiments.depth_shield import ArmShadow
 

@@ -167,8 +167,9 @@ class DepthShieldPlanner(DepthShield):
         solutions = solutions[[clearance(q) >= keep for q in solutions]]
         order = np.argsort(np.max(np.abs(solutions - joints), axis=1), kind="stable")
         candidates = solutions[order][: self.rrt.max_goal_candidates]
-        budget = self.rrt.time_limit_s / max(1, len(candidates))
-        checks = None if self.rrt.max_checks is None else self.rrt.max_checks // len(candidates)
+        shares = max(1, len(candidates))
+        budget = self.rrt.time_limit_s / shares
+        checks = None if self.rrt.max_checks is None else self.rrt.max_checks // shares
         for target in candidates:
             result = plan_joint_path(
                 lambda q: clearance(q) >= keep, joints, target, self.rrt, budget, checks
