@@ -1,11 +1,13 @@
 """The hybrids in other settings on validation tasks, against the committed ones (protocols in
 README.md, session 18): the planner's budget in validity checks instead of time (does the
 deterministic budget keep success and collisions, and shorten the longest planning steps?),
-and for 3 and 2 views the unseen-space test the 1-view hybrid has (fewer collisions?).
+and for 3 and 2 views the unseen-space test and the 128-pixel depth camera the 1-view hybrid
+has (fewer collisions?).
 
     python results/stage2/shield/validate_hybrids.py --setting time     # the committed hybrids
     python results/stage2/shield/validate_hybrids.py --setting checks   # --depth-plan-checks 10000
     python results/stage2/shield/validate_hybrids.py --setting hidden --views 3 2
+    python results/stage2/shield/validate_hybrids.py --setting fine --views 3 2
 
 Each hybrid (`depth_planner.HYBRID[v]`, v = 3, 2, 1 views, with the shipped policies) acts on
 `--num-blocked` blocked and `--num-standard` standard validation tasks from `--offset` into
@@ -41,6 +43,9 @@ SETTINGS = {
     # The 1-view hybrid's unseen-space test (`--depth-shadow-m 0.05
     # --depth-shadow-behind-surfaces`) for any number of views.
     "hidden": lambda views: replace(HYBRID[views], shadow_m=0.05, shadow_behind_surfaces=True),
+    # The 1-view hybrid's 128-pixel depth camera (`--depth-fine-size 128`) for any number of
+    # views.
+    "fine": lambda views: replace(HYBRID[views], fine_depth_size=128),
 }
 POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 
