@@ -374,8 +374,8 @@ class EvalConfig:
     table where they can (0: true contact)."""
     depth_hybrid: bool = False
     """A vision residual acts as Table 2's hybrid rows: through the depth shield at 1 cm with
-    the planner when stuck, and from one view keeping the hand out of unseen space within
-    5 cm behind seen surfaces and reading a 128-pixel depth camera at the view's pose
+    the planner when stuck, both reading 128-pixel depth cameras at the views' poses, and
+    from one view keeping the hand out of unseen space within 5 cm behind seen surfaces
     (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper; the settings chosen on
     validation tasks). Not with the other --depth-* options."""
     depth_shield_m: float | None = None

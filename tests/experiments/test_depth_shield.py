@@ -317,7 +317,7 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
 
 def test_hybrid_guards_describe_the_committed_hybrid_rows():
     one_view = Path("results/table2/planned_hidden_fine_residual-1view.json")
-    two_views = Path("results/stage2/shield/rl2_seed2_planned.json")
+    two_views = Path("results/table2/planned_fine_residual-2views.json")
     for views, path in ((1, one_view), (2, two_views)):
         policy = json.loads((REPO / path).read_text())["policy"]
         assert policy.endswith(HYBRID[views].describe())

@@ -9,7 +9,8 @@ has (fewer collisions?).
     python results/stage2/shield/validate_hybrids.py --setting hidden --views 3 2
     python results/stage2/shield/validate_hybrids.py --setting fine --views 3 2
 
-Each hybrid (`depth_planner.HYBRID[v]`, v = 3, 2, 1 views, with the shipped policies) acts on
+Each hybrid (`BEFORE[v]`, v = 3, 2, 1 views: `depth_planner.HYBRID` as it was before these
+protocols, with the shipped policies; and its variants) acts on
 `--num-blocked` blocked and `--num-standard` standard validation tasks from `--offset` into
 the validation range; the same tasks for every setting. Appends one JSON line per (views,
 family) to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act;
@@ -29,7 +30,7 @@ import torch
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import HYBRID
+from clamgen.experiments.depth_planner import HYBRID, DepthGuard
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.policies import load_policy
 
@@ -37,15 +38,18 @@ HERE = Path(__file__).resolve().parent
 PLAN_CHECKS = 10_000
 """About the time budget's 1 s of checks on the depth map on one core here (measured: 9,000-
 12,000 checks a second, simplification and re-check included)."""
+BEFORE = {3: DepthGuard(planner=True), 2: DepthGuard(planner=True), 1: HYBRID[1]}
+"""The hybrids these protocols start from (session 17's `HYBRID`; session 18 gave the 3- and
+2-view ones the 128-pixel depth camera, the "fine" setting here)."""
 SETTINGS = {
-    "time": lambda views: HYBRID[views],
-    "checks": lambda views: replace(HYBRID[views], plan_checks=PLAN_CHECKS),
+    "time": lambda views: BEFORE[views],
+    "checks": lambda views: replace(BEFORE[views], plan_checks=PLAN_CHECKS),
     # The 1-view hybrid's unseen-space test (`--depth-shadow-m 0.05
     # --depth-shadow-behind-surfaces`) for any number of views.
-    "hidden": lambda views: replace(HYBRID[views], shadow_m=0.05, shadow_behind_surfaces=True),
+    "hidden": lambda views: replace(BEFORE[views], shadow_m=0.05, shadow_behind_surfaces=True),
     # The 1-view hybrid's 128-pixel depth camera (`--depth-fine-size 128`) for any number of
     # views.
-    "fine": lambda views: replace(HYBRID[views], fine_depth_size=128),
+    "fine": lambda views: replace(BEFORE[views], fine_depth_size=128),
 }
 POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 

@@ -243,13 +243,14 @@ class DepthGuard:
 
 
 HYBRID = {
-    3: DepthGuard(planner=True),
-    2: DepthGuard(planner=True),
+    3: DepthGuard(planner=True, fine_depth_size=128),
+    2: DepthGuard(planner=True, fine_depth_size=128),
     1: DepthGuard(planner=True, shadow_m=0.05, shadow_behind_surfaces=True, fine_depth_size=128),
 }
 """The hybrid rows of Table 2 by number of views (`clamgen eval --depth-hybrid`): the shield
-at 1 cm (chosen on validation tasks) with the planner when stuck. From one view the hand also
-keeps out of unseen space within 5 cm behind seen surfaces, and the shield reads the view's
-depth from a 128-pixel depth camera at the same pose (an extra sensor; the policy still acts
-on its 64-pixel images). Both chosen on 1-view validation tasks
-(`results/stage2/shield/README.md`)."""
+at 1 cm (chosen on validation tasks) with the planner when stuck, the shield and planner
+reading the views' depth from 128-pixel depth cameras at the views' poses (extra sensors;
+the policy still acts on its 64-pixel images; chosen on 1-view validation tasks in session 17
+and on 3- and 2-view ones in session 18). From one view the hand also keeps out of unseen
+space within 5 cm behind seen surfaces (chosen on 1-view validation tasks; with 3 and 2 views
+it cost success). `results/stage2/shield/README.md`."""

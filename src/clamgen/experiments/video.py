@@ -54,8 +54,8 @@ class RenderConfig:
     gif_scale: float = 0.5
     """Scale of the GIF frames relative to the MP4's (GIFs get large)."""
     depth_hybrid: bool = False
-    """A vision residual acts as Table 2's hybrid rows (shield, planner, and from one view the
-    unseen-space test and a 128-pixel depth camera), as `clamgen eval --depth-hybrid`."""
+    """A vision residual acts as Table 2's hybrid rows (shield and planner on 128-pixel depth
+    cameras, and from one view the unseen-space test), as `clamgen eval --depth-hybrid`."""
     depth_shield_m: float | None = None
     """A vision residual acts through the collision shield on its own depth images, keeping
     this clearance (m), as `clamgen eval --depth-shield-m`. Off by default."""
