@@ -7,9 +7,10 @@ the same architecture as `residual-2views`), timed interleaved in blocks with th
 that load from other processes affects all alike. The blocked-path issue's aim: under 2 ms a
 step on one core.
 
-The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`,
-and for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`, and with
-that and the shield reading a 128-pixel depth camera, `--depth-fine-size 128`) are timed
+The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`;
+for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`; and as the
+hybrids without their planners, the shield reading 128-pixel depth cameras,
+`--depth-fine-size 128`, for one view with the unseen-space test) are timed
 along whole episodes of their own on blocked and standard tasks (8 of each), recorded first,
 so that the shield sees a growing obstacle map and steps that need it (and a policy pressed
 against an obstacle until the time limit), as in an evaluation (its cost includes the
@@ -54,15 +55,17 @@ SHIELD = DepthGuard()
 HIDDEN = replace(HYBRID[1], planner=False, fine_depth_size=0)
 """With the unseen-space test as chosen for one view (`--depth-shadow-m 0.05
 --depth-shadow-behind-surfaces`)."""
-FINE = replace(HYBRID[1], planner=False)
-"""And the shield reading the 128-pixel depth camera (`--depth-fine-size 128`): the 1-view
-hybrid without its planner."""
+FINE = {views: replace(guard, planner=False) for views, guard in HYBRID.items()}
+"""The hybrids without their planners: the shield reading 128-pixel depth cameras
+(`--depth-fine-size 128`), for one view with the unseen-space test."""
 SHIELDED = (
     ("residual-3views", SHIELD),
     ("residual-2views", SHIELD),
     ("residual-1view", SHIELD),
     ("residual-1view", HIDDEN),
-    ("residual-1view", FINE),
+    ("residual-3views", FINE[3]),
+    ("residual-2views", FINE[2]),
+    ("residual-1view", FINE[1]),
 )
 NUM_EPISODES = 8
 BLOCK = 50  # calls of one policy before switching to the next
