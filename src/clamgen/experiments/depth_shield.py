@@ -21,6 +21,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from scipy.spatial import cKDTree
 
 from clamgen.experiments.shield import step_checks, step_checks_many, step_target
 from clamgen.robot import ur5
@@ -331,12 +332,12 @@ class DepthOccupancy:
             low, high = mine.min(axis=0) - SUPPORT_RADIUS_M, mine.max(axis=0) + SUPPORT_RADIUS_M
             kept = self.points[_in_boxes(self.points, low, high)]
             others = np.concatenate([mine, kept])  # (kept points farther out support none)
-            # Distances coordinate by coordinate: (N, M) arrays, not one (N, M, 3).
-            squared = np.zeros((len(mine), len(others)))
-            for axis in range(3):
-                gap = mine[:, axis, None] - others[:, axis]
-                squared += gap * gap
-            supported = (np.sqrt(squared) < SUPPORT_RADIUS_M).sum(axis=1) >= 2  # (itself, another)
+            # Points within the radius (strictly: the largest float below it, inclusive), by
+            # a k-d tree: the steps with many new points have thousands.
+            near = cKDTree(others).query_ball_point(
+                mine, np.nextafter(SUPPORT_RADIUS_M, 0.0), return_length=True
+            )
+            supported = near >= 2  # (itself and another)
             index, cells = index[supported], cells[supported]
         if len(index) == 0:
             return cells
