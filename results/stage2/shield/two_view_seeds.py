@@ -2,9 +2,11 @@
 seeds of the shipped `residual-2views` recipe. Seed 0 is the shipped policy
 (results/table2/planned_residual-2views.json); seeds 3 and 4 are the 2-view DAgger runs of
 `results/sweeps/shipped-1view.toml` (the same recipe; its seeds 1 and 2 were not kept), each
-evaluated once on the 200 + 200 test tasks with `clamgen eval --depth-hybrid`, choosing
-nothing (planned2_seed<k>.json here; skipped when it exists). Prints, per task family, the
-mean success with rliable's 95% stratified-bootstrap interval and each seed's success and
+evaluated once on the 200 + 200 test tasks with the 2-view hybrid as it was then
+(`clamgen eval --depth-shield-m 0.01 --depth-planner`, the shield on the 64-pixel views; the
+hybrid reads 128-pixel depth cameras since session 18), choosing nothing
+(planned2_seed<k>.json here; skipped when it exists). Prints, per task family, the mean
+success with rliable's 95% stratified-bootstrap interval and each seed's success and
 collision rate, and writes them to two_view_seeds.txt.
 
     clamgen sweep results/sweeps/shipped-1view.toml --max-concurrent 1   # the DAgger runs
@@ -39,6 +41,10 @@ def _scores(path: Path) -> dict[str, tuple[float, float]]:
     return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
 
 
+HYBRID_THEN = ("--depth-shield-m", "0.01", "--depth-planner")
+"""The 2-view hybrid these seeds were evaluated with."""
+
+
 def _evaluate(seed: int) -> None:
     out = HERE / f"planned2_seed{seed}"
     if out.with_suffix(".json").is_file():
@@ -46,7 +52,7 @@ def _evaluate(seed: int) -> None:
     policy = RUNS / RUN / f"seed{seed}" / "policy.pt"
     if not policy.is_file():
         raise SystemExit(f"{policy} is not trained yet: run the shipped-1view sweep first")
-    command = ["clamgen", "eval", "--table", "2", "--policy", str(policy), "--depth-hybrid"]
+    command = ["clamgen", "eval", "--table", "2", "--policy", str(policy), *HYBRID_THEN]
     command += ["--num-tasks", "200", "--name", NAME, "--out", str(out)]
     print("$", shlex.join(command), flush=True)
     subprocess.run(command, check=True)
