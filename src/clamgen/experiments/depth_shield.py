@@ -376,13 +376,14 @@ class DepthOccupancy:
         off_arm = np.ones(len(points), bool)
         points = points[near].astype(np.float32)
         starts, axis = starts.astype(np.float32), (ends - starts).astype(np.float32)
-        length2 = np.maximum((axis * axis).sum(1), 1e-12)
-        along = points @ axis.T - (starts * axis).sum(1)
+        # (G, P) arrays: the reduction over the geoms then runs along whole rows.
+        length2 = np.maximum((axis * axis).sum(1), 1e-12)[:, None]
+        along = axis @ points.T - (starts * axis).sum(1)[:, None]
         t = np.clip(along / length2, 0.0, 1.0)
-        squared = (points * points).sum(1)[:, None] - 2.0 * points @ starts.T
-        squared += (starts * starts).sum(1) - 2.0 * t * along + t * t * length2
-        reach2 = ((self.arm.radii + ARM_FILTER_M) ** 2).astype(np.float32)
-        off_arm[near[(squared <= reach2).any(axis=1)]] = False
+        squared = (points * points).sum(1) - 2.0 * starts @ points.T
+        squared += (starts * starts).sum(1)[:, None] - 2.0 * t * along + t * t * length2
+        reach2 = ((self.arm.radii + ARM_FILTER_M) ** 2).astype(np.float32)[:, None]
+        off_arm[near[np.logical_or.reduce(squared <= reach2, axis=0)]] = False
         return off_arm
 
     def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
