@@ -83,11 +83,11 @@ class RRTConfig:
     the machine's speed or load."""
     simplify_max_checks: int | None = None
     """When set, the simplification stops after this many validity checks instead of at
-    `simplify_time_s`."""
+    `simplify_time_s` (it makes one full round at least, as with the time limit)."""
     seed: int | None = 1
     """Seed of OMPL's random number generators, re-applied before every plan so that a task's
     plan does not depend on the episodes before it (>= 1: OMPL ignores 0). None: not seeded.
-    Plans that hit a time limit still depend on the machine's speed."""
+    Plans that hit a time limit still depend on the machine's speed (not with `max_checks`)."""
     quiet: bool = True
     """Raise OMPL's log level to warnings (the wheel logs debug messages by default)."""
 
