@@ -560,7 +560,9 @@ def _depth_guard(config):
 
     margin_m, planner = config.depth_shield_m, config.depth_planner
     shadow_m, behind_surfaces = config.depth_shadow_m, config.depth_shadow_behind_surfaces
-    bridge_m = config.depth_bridge_m
+    bridge_m, checks = config.depth_bridge_m, config.depth_plan_checks
+    if checks != 0 and not planner:
+        raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
@@ -568,8 +570,6 @@ def _depth_guard(config):
             raise SystemExit("--depth-bridge-m needs --depth-shield-m (the map it adds to)")
         if config.depth_fine_size != 0:
             raise SystemExit("--depth-fine-size needs --depth-shield-m (the shield that reads it)")
-        if config.depth_plan_checks != 0 and not planner:
-            raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
         raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     if shadow_m is not None and not 0 < shadow_m < float("inf"):
         raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")
@@ -580,9 +580,6 @@ def _depth_guard(config):
     fine = config.depth_fine_size
     if fine != 0 and not 8 <= fine <= MAX_IMAGE_SIZE:
         raise SystemExit(f"--depth-fine-size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine}")
-    checks = config.depth_plan_checks
-    if checks != 0 and not planner:
-        raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
     if checks < 0:
         raise SystemExit(f"--depth-plan-checks must be >= 0, got {checks}")
     return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine, checks)

@@ -234,7 +234,8 @@ class DepthOccupancy:
         self.directions = self.rays / np.linalg.norm(self.rays, axis=1, keepdims=True)
         origins = scene.data.cam_xpos[scene.camera_ids[:num_views]].astype(np.float32)
         self.origins = np.repeat(origins, height * width, axis=0)
-        self._heights = (self.origins[:, 2].copy(), self.rays[:, 2].copy())  # z, contiguous
+        # Their heights alone, contiguous, for the above-the-table test of every changed pixel.
+        self._origin_z, self._ray_z = self.origins[:, 2].copy(), self.rays[:, 2].copy()
         self.shape = (num_views, height, width)
         self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
         self._grid = np.zeros(int(np.prod(self._dims)), bool)
@@ -287,7 +288,7 @@ class DepthOccupancy:
         if changed_only:
             self._last_depth = depth_u8.copy()
         depth = DEPTH_OF_CODE[depth_u8[pixels]]
-        height = self._heights[0][pixels] + depth * self._heights[1][pixels]
+        height = self._origin_z[pixels] + depth * self._ray_z[pixels]
         valid = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
         depth, keep = depth[valid], pixels[valid]
         points = (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
