@@ -23,6 +23,13 @@ import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
+from clamgen.experiments.depth_kernels import (
+    any_in_boxes,
+    capsule_clearances,
+    lift_pixels,
+    surface_candidates,
+    within_capsules,
+)
 from clamgen.experiments.shield import step_checks, step_checks_many, step_target
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import forward_kinematics
@@ -71,6 +78,10 @@ HIDDEN_CLEARANCE_M = -0.01
 """The clearance `DepthClearance` gives a configuration that reaches into hidden space."""
 DEPTH_OF_CODE = uint8_to_depth(np.arange(256, dtype=np.uint8))
 """Metric depth of each stored depth code (the same values as `uint8_to_depth`, looked up)."""
+_FAR_CLIP = np.float32(FAR_CLIP_M)
+_ABOVE_TABLE_Z = np.float32(C.TABLE_TOP_Z_M + ABOVE_TABLE_M)
+"""The lift's thresholds in float32, as its depths and heights (`lift_pixels`)."""
+_NONE = np.empty(0, np.uint8)
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -149,26 +160,15 @@ class ArmCapsules:
         return ends[:, :, 0], ends[:, :, 1]
 
     def clearances(self, joints: np.ndarray, points: np.ndarray, cap: float) -> np.ndarray:
-        """`clearance` at each of joints (B, 6), capped at `cap`: (B,). Only the pairs of a
-        point and a geom whose box (over all of joints, widened by its radius and `cap`) holds
-        the point are measured: the rest are farther than `cap`."""
+        """`clearance` at each of joints (B, 6), capped at `cap`: (B,) (the points by
+        `capsule_clearances`, which measures only the pairs of a point and a geom whose box
+        holds the point: the rest are farther than `cap`)."""
         starts, ends = self.segments_many(joints)  # B, G, 3
         lowest = np.minimum(starts[..., 2], ends[..., 2]) - self.radii
         out = np.minimum(cap, (lowest[:, self.touch_table] - C.TABLE_TOP_Z_M).min(axis=1))
-        reach = (self.radii + cap)[:, None]
-        low = np.minimum(starts, ends).min(axis=0) - reach  # G, 3
-        high = np.maximum(starts, ends).max(axis=0) + reach
-        points = points[_in_boxes(points, low.min(axis=0), high.max(axis=0))]
-        point, geom = np.nonzero(_in_boxes(points, low, high))
-        if len(point) == 0:
+        if len(points) == 0:
             return out
-        start, axis = starts[:, geom], ends[:, geom] - starts[:, geom]  # B, K, 3
-        offset = points[point] - start
-        along = np.einsum("bkj,bkj->bk", offset, axis)
-        t = np.clip(along / np.maximum(np.einsum("bkj,bkj->bk", axis, axis), 1e-12), 0.0, 1.0)
-        gap = offset - t[..., None] * axis
-        surface = np.sqrt(np.einsum("bkj,bkj->bk", gap, gap)) - self.radii[geom]
-        return np.minimum(out, surface.min(axis=1))
+        return np.minimum(out, capsule_clearances(starts, ends, self.radii, points, cap))
 
     def near(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray, reach: float):
         """Indices of `points` in the box around the arm's segments widened by its largest
@@ -184,12 +184,10 @@ class ArmCapsules:
         starts, ends = self.segments(joints)
         lowest = np.minimum(starts[:, 2], ends[:, 2]) - self.radii
         table = min(cap, float((lowest[self.touch_table] - C.TABLE_TOP_Z_M).min()))
-        if np.isfinite(cap):
-            points = points[self.near(points, starts, ends, cap)]
         if len(points) == 0:
             return table
-        surface = _segment_distance(points, starts, ends) - self.radii[None]
-        return min(table, float(surface.min()))
+        surface = capsule_clearances(starts[None], ends[None], self.radii, points, cap)[0]
+        return min(table, float(surface))
 
 
 class DepthOccupancy:
@@ -234,8 +232,6 @@ class DepthOccupancy:
         self.directions = self.rays / np.linalg.norm(self.rays, axis=1, keepdims=True)
         origins = scene.data.cam_xpos[scene.camera_ids[:num_views]].astype(np.float32)
         self.origins = np.repeat(origins, height * width, axis=0)
-        # Their heights alone, contiguous, for the above-the-table test of every changed pixel.
-        self._origin_z, self._ray_z = self.origins[:, 2].copy(), self.rays[:, 2].copy()
         self.shape = (num_views, height, width)
         self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
         self._grid = np.zeros(int(np.prod(self._dims)), bool)
@@ -280,18 +276,13 @@ class DepthOccupancy:
                 f"expected images of shape (V, 4 or 1, H, W) with (V, H, W) = {self.shape}, "
                 f"got {images.shape}"
             )
-        depth_u8 = images[:, -1].reshape(-1)  # RGBD or depth alone: depth comes last
-        if changed_only and self._last_depth is not None:
-            pixels = np.flatnonzero(depth_u8 > self._last_depth)
-        else:
-            pixels = np.arange(len(depth_u8))
+        codes = images[:, -1].reshape(-1)  # RGBD or depth alone: depth comes last
+        last = self._last_depth if changed_only and self._last_depth is not None else _NONE
+        points, keep = lift_pixels(
+            codes, last, DEPTH_OF_CODE, self.origins, self.rays, _FAR_CLIP, _ABOVE_TABLE_Z
+        )
         if changed_only:
-            self._last_depth = depth_u8.copy()
-        depth = DEPTH_OF_CODE[depth_u8[pixels]]
-        height = self._origin_z[pixels] + depth * self._ray_z[pixels]
-        valid = np.flatnonzero((depth < FAR_CLIP_M) & (height > C.TABLE_TOP_Z_M + ABOVE_TABLE_M))
-        depth, keep = depth[valid], pixels[valid]
-        points = (self.origins[keep] + depth[:, None] * self.rays[keep]).astype(np.float64)
+            self._last_depth = codes.copy()
         extras = ([self.directions[keep]] if with_rays else []) + ([keep] if with_pixels else [])
         return (points, *extras) if extras else points
 
@@ -313,15 +304,17 @@ class DepthOccupancy:
         points, *directions, pixels = self.lift(
             images, changed_only=True, with_rays=self.extrude_m > 0, with_pixels=True
         )
-        radial2 = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
-        off_target = points - np.asarray(goal)
-        keep = (radial2 > PEDESTAL_RADIUS_M**2) | (points[:, 2] > PEDESTAL_TOP_M)
-        keep &= np.einsum("ij,ij->i", off_target, off_target) > TARGET_REACH_M**2
-        voxels, inside = self.voxels(points)
-        keep &= inside
-        index = np.flatnonzero(keep)  # the lifted points still in question
-        cells = voxels[index] @ self._strides
-        new = ~self._grid[cells]
+        index, cells, new = surface_candidates(
+            points,
+            np.asarray(goal, np.float64),
+            TARGET_REACH_M**2,
+            PEDESTAL_RADIUS_M**2,
+            PEDESTAL_TOP_M,
+            GRID_LOW_M,
+            1.0 / VOXEL_M,
+            self._dims,
+            self._grid,
+        )  # the lifted points still in question: off the pedestal and target, in the grid
         if self.bridge_m > 0:  # points on surface already kept can be bridged to
             self._pixel_points[pixels[index[~new]]] = points[index[~new]]
         index, cells = index[new], cells[new]
@@ -370,22 +363,10 @@ class DepthOccupancy:
         return voxels[inside] @ self._strides
 
     def _off_arm(self, points: np.ndarray, joints: np.ndarray) -> np.ndarray:
-        """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (squared
-        distances in float32: the test runs on every pixel the arm's motion changed)."""
+        """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (the test
+        runs on every pixel the arm's motion changed: compiled, `within_capsules`)."""
         starts, ends = self.arm.segments(joints)
-        near = self.arm.near(points, starts, ends, ARM_FILTER_M)
-        off_arm = np.ones(len(points), bool)
-        points = points[near].astype(np.float32)
-        starts, axis = starts.astype(np.float32), (ends - starts).astype(np.float32)
-        # (G, P) arrays: the reduction over the geoms then runs along whole rows.
-        length2 = np.maximum((axis * axis).sum(1), 1e-12)[:, None]
-        along = axis @ points.T - (starts * axis).sum(1)[:, None]
-        t = np.clip(along / length2, 0.0, 1.0)
-        squared = (points * points).sum(1) - 2.0 * starts @ points.T
-        squared += (starts * starts).sum(1)[:, None] - 2.0 * t * along + t * t * length2
-        reach2 = ((self.arm.radii + ARM_FILTER_M) ** 2).astype(np.float32)[:, None]
-        off_arm[near[np.logical_or.reduce(squared <= reach2, axis=0)]] = False
-        return off_arm
+        return ~within_capsules(points, starts, ends, self.arm.radii + ARM_FILTER_M)
 
     def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
         """Cells up to `extrude_m` behind surface points along their viewing rays (an obstacle
@@ -667,17 +648,14 @@ class DepthClearance:
             widen = self.arm.radii[hand] + self.shadow.near_m + reach
             low = (axes[:, hand].min(axis=0) - widen[:, None]).min(axis=0)
             high = (axes[:, hand].max(axis=0) + widen[:, None]).max(axis=0)
-            if _in_boxes(self.points, low, high).any():
+            if any_in_boxes(self.points, low[None], high[None]):
                 if self.shadow.hidden(step_checks(joints, action), self.points).any():
                     return float(self.step_clearances(joints, np.asarray(action)[None])[0])
                 visible = True  # (`step_checks` gives `step_checks_many`'s configurations)
         if len(self.points):
             # Per geom, the box around its axis at both ends widened by its radius and reach.
             widen = (self.arm.radii + reach)[:, None]
-            box_low, box_high = axes.min(axis=0) - widen, axes.max(axis=0) + widen
-            points = self.points  # those in the boxes' union first: usually few or none
-            points = points[_in_boxes(points, box_low.min(0), box_high.max(0))]
-            if _in_boxes(points, box_low, box_high).any():
+            if any_in_boxes(self.points, axes.min(axis=0) - widen, axes.max(axis=0) + widen):
                 return float(self.step_clearances(joints, np.asarray(action)[None], visible)[0])
         return self.margin_m
 

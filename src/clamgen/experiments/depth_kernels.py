@@ -1,0 +1,191 @@
+"""Compiled loops for the depth shield's per-step geometry (numba).
+
+The shield tests every depth pixel the arm's motion changed (about 1400 a step for three
+128-pixel views) against the arm's capsules, and every configuration it checks against the
+obstacle points seen. In numpy each test is a dozen passes over (geoms, points) arrays, most
+of them spent on points already decided; these loops decide each point at its first geom
+within reach and skip the rest. They compute the same distances (in float64, point minus the
+nearest point of the segment, not an expanded square), so the shield's decisions are those
+of the array code except within rounding of a threshold.
+
+Compiled on first use (about a second each) and cached beside this file.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _in_box(points: np.ndarray, i: int, low: np.ndarray, high: np.ndarray) -> bool:
+    """Whether point i of `points` lies strictly between `low` and `high` (3,)."""
+    for k in range(3):
+        if not low[k] < points[i, k] < high[k]:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _segment_distance2(
+    points: np.ndarray, i: int, start: np.ndarray, axis: np.ndarray, length2: float
+) -> float:
+    """Squared distance of point i of `points` to the segment from `start` along `axis` (3,),
+    |axis|^2 = `length2`."""
+    dx, dy, dz = points[i, 0] - start[0], points[i, 1] - start[1], points[i, 2] - start[2]
+    t = 0.0
+    if length2 > 0.0:
+        t = min(max((dx * axis[0] + dy * axis[1] + dz * axis[2]) / length2, 0.0), 1.0)
+    dx -= t * axis[0]
+    dy -= t * axis[1]
+    dz -= t * axis[2]
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True, nogil=True)
+def within_capsules(
+    points: np.ndarray, starts: np.ndarray, ends: np.ndarray, reach: np.ndarray
+) -> np.ndarray:
+    """Whether each of `points` (P, 3) lies within `reach[g]` of some segment g from
+    `starts[g]` to `ends[g]` (G, 3): (P,) bool."""
+    axes = ends - starts
+    length2 = (axes * axes).sum(axis=1)
+    # Per geom, the box that holds every point within reach of it.
+    low = np.minimum(starts, ends) - reach.reshape(-1, 1)
+    high = np.maximum(starts, ends) + reach.reshape(-1, 1)
+    out = np.zeros(points.shape[0], np.bool_)
+    for i in range(points.shape[0]):
+        for g in range(starts.shape[0]):
+            if not _in_box(points, i, low[g], high[g]):
+                continue
+            if _segment_distance2(points, i, starts[g], axes[g], length2[g]) <= reach[g] ** 2:
+                out[i] = True
+                break
+    return out
+
+
+@njit(cache=True, nogil=True)
+def capsule_clearances(
+    starts: np.ndarray, ends: np.ndarray, radii: np.ndarray, points: np.ndarray, cap: float
+) -> np.ndarray:
+    """Per configuration b, the distance from the surface of capsules (segments from
+    `starts[b, g]` to `ends[b, g]`, (B, G, 3), radii (G,)) to the nearest of `points` (P, 3)
+    (negative: inside one), or `cap` when every point is farther: (B,)."""
+    configs, geoms = starts.shape[0], starts.shape[1]
+    out = np.full(configs, cap)
+    candidates = np.empty(points.shape[0], np.int64)
+    for g in range(geoms):
+        # The box over all configurations that holds every point within `cap` of the geom's
+        # surface, and the points in it, once.
+        low, high = np.full(3, np.inf), np.full(3, -np.inf)
+        for b in range(configs):
+            for k in range(3):
+                low[k] = min(low[k], starts[b, g, k], ends[b, g, k])
+                high[k] = max(high[k], starts[b, g, k], ends[b, g, k])
+        low -= radii[g] + cap
+        high += radii[g] + cap
+        count = 0
+        for i in range(points.shape[0]):
+            if _in_box(points, i, low, high):
+                candidates[count] = i
+                count += 1
+        for b in range(configs):
+            axis = ends[b, g] - starts[b, g]
+            length2 = (axis * axis).sum()
+            best = out[b] + radii[g]  # only a point nearer than this to the axis lowers it
+            for j in range(count):
+                if best <= 0.0:
+                    break
+                d2 = _segment_distance2(points, candidates[j], starts[b, g], axis, length2)
+                if d2 < best * best:
+                    out[b] = min(out[b], np.sqrt(d2) - radii[g])
+                    best = out[b] + radii[g]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def lift_pixels(
+    codes: np.ndarray,
+    last: np.ndarray,
+    depth_of_code: np.ndarray,
+    origins: np.ndarray,
+    rays: np.ndarray,
+    far_m: np.float32,
+    min_height_m: np.float32,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The world points (N, 3) and flat indices (N,) of the depth pixels (stored codes,
+    flattened over views) nearer than `far_m` whose point lies higher than `min_height_m`;
+    with `last` (the codes of the previous call; empty: none), only of those whose code grew.
+    In float32 throughout, as the array code computes it (`far_m`, `min_height_m` float32)."""
+    pixels = np.empty(codes.shape[0], np.int64)
+    count = 0
+    for i in range(codes.shape[0]):
+        if last.shape[0] and codes[i] <= last[i]:
+            continue
+        depth = depth_of_code[codes[i]]
+        if depth < far_m and origins[i, 2] + depth * rays[i, 2] > min_height_m:
+            pixels[count] = i
+            count += 1
+    pixels = pixels[:count]
+    points = np.empty((count, 3))
+    for j in range(count):
+        i = pixels[j]
+        depth = depth_of_code[codes[i]]
+        for k in range(3):
+            points[j, k] = origins[i, k] + depth * rays[i, k]
+    return points, pixels
+
+
+@njit(cache=True, nogil=True)
+def surface_candidates(
+    points: np.ndarray,
+    goal: np.ndarray,
+    reach2: float,
+    pedestal_radius2: float,
+    pedestal_top: float,
+    low: np.ndarray,
+    inverse_voxel: float,
+    dims: np.ndarray,
+    grid: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of `points` (N, 3), those off the pedestal (radius^2 `pedestal_radius2` up to height
+    `pedestal_top`) and farther than sqrt(`reach2`) from `goal`, in the voxel grid (corner
+    `low`, `dims` voxels of 1 / `inverse_voxel`, flat occupancy `grid`): their indices, their
+    voxels (flat) and whether each voxel is new (not in `grid`)."""
+    index = np.empty(points.shape[0], np.int64)
+    cells = np.empty(points.shape[0], np.int64)
+    new = np.empty(points.shape[0], np.bool_)
+    count = 0
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if x * x + y * y <= pedestal_radius2 and z <= pedestal_top:
+            continue
+        dx, dy, dz = x - goal[0], y - goal[1], z - goal[2]
+        if dx * dx + dy * dy + dz * dz <= reach2:
+            continue
+        cell = 0
+        inside = True
+        for k in range(3):
+            voxel = np.int64(np.floor((points[i, k] - low[k]) * inverse_voxel))
+            if voxel <= -1 or voxel >= dims[k]:
+                inside = False
+                break
+            cell = cell * dims[k] + voxel
+        if not inside:
+            continue
+        index[count] = i
+        cells[count] = cell
+        new[count] = not grid[cell]
+        count += 1
+    return index[:count], cells[:count], new[:count]
+
+
+@njit(cache=True, nogil=True)
+def any_in_boxes(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> bool:
+    """Whether any of `points` (P, 3) lies strictly inside any of the boxes from `low` to
+    `high` (B, 3)."""
+    for i in range(points.shape[0]):
+        for b in range(low.shape[0]):
+            if _in_box(points, i, low[b], high[b]):
+                return True
+    return False

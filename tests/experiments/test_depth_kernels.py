@@ -1,0 +1,110 @@
+"""The depth shield's compiled loops against the array formulas they replace."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clamgen.experiments import depth_kernels as K
+from clamgen.experiments.depth_shield import (
+    DEPTH_OF_CODE,
+    GRID_LOW_M,
+    VOXEL_M,
+    _in_boxes,
+    _segment_distance,
+)
+
+
+def _segments(rng, count):
+    starts = rng.uniform(-0.5, 0.5, (count, 3))
+    ends = starts + rng.normal(0.0, 0.1, (count, 3))
+    ends[0] = starts[0]  # a degenerate segment (a sphere)
+    return starts, ends
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_within_capsules_matches_distances(seed):
+    rng = np.random.default_rng(seed)
+    starts, ends = _segments(rng, 8)
+    reach = rng.uniform(0.02, 0.1, 8)
+    points = rng.uniform(-0.7, 0.7, (3000, 3))
+    gap = _segment_distance(points, starts, ends) - reach
+    expected = (gap <= 0).any(axis=1)
+    decided = np.abs(gap).min(axis=1) > 1e-9  # (rounding may decide a point on a surface)
+    got = K.within_capsules(points, starts, ends, reach)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(got[decided], expected[decided])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_capsule_clearances_match_distances(seed):
+    rng = np.random.default_rng(seed)
+    configs, geoms, cap = 6, 5, 0.08
+    starts = rng.uniform(-0.4, 0.4, (configs, geoms, 3))
+    ends = starts + rng.normal(0.0, 0.1, (configs, geoms, 3))
+    radii = rng.uniform(0.02, 0.06, geoms)
+    points = rng.uniform(-0.6, 0.6, (500, 3))
+    expected = np.array(
+        [
+            min(cap, (_segment_distance(points, starts[b], ends[b]) - radii).min())
+            for b in range(configs)
+        ]
+    )
+    got = K.capsule_clearances(starts, ends, radii, points, cap)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    assert (got < cap).any() and (got < 0).any()
+    empty = K.capsule_clearances(starts, ends, radii, np.empty((0, 3)), cap)
+    np.testing.assert_array_equal(empty, np.full(configs, cap))
+
+
+def test_lift_pixels_matches_the_array_formula():
+    rng = np.random.default_rng(0)
+    count = 4000
+    codes = rng.integers(0, 256, count).astype(np.uint8)
+    last = rng.integers(0, 256, count).astype(np.uint8)
+    origins = rng.uniform(-1, 1, (count, 3)).astype(np.float32)
+    rays = rng.normal(0, 1, (count, 3)).astype(np.float32)
+    far, low = np.float32(1.5), np.float32(0.1)
+    for previous in (last, np.empty(0, np.uint8)):
+        changed = codes > previous if len(previous) else np.ones(count, bool)
+        depth = DEPTH_OF_CODE[codes]
+        height = origins[:, 2] + depth * rays[:, 2]
+        keep = np.flatnonzero(changed & (depth < far) & (height > low))
+        expected = (origins[keep] + depth[keep, None] * rays[keep]).astype(np.float64)
+        points, pixels = K.lift_pixels(codes, previous, DEPTH_OF_CODE, origins, rays, far, low)
+        np.testing.assert_array_equal(pixels, keep)
+        np.testing.assert_array_equal(points, expected)
+
+
+def test_surface_candidates_match_the_array_formula():
+    rng = np.random.default_rng(1)
+    points = rng.uniform(-1.2, 1.6, (5000, 3))
+    points[:50, :2] *= 0.01  # some on the pedestal
+    goal = np.array([0.4, 0.2, 0.3])
+    points[50:100] = goal + rng.normal(0, 0.02, (50, 3))  # some on the target
+    dims = np.array([250, 200, 120])
+    grid = rng.random(int(dims.prod())) < 0.3
+    reach2, pedestal2, top = 0.05**2, 0.09**2, 0.01
+    index, cells, new = K.surface_candidates(
+        points, goal, reach2, pedestal2, top, GRID_LOW_M, 1.0 / VOXEL_M, dims, grid
+    )
+    keep = ((points[:, :2] ** 2).sum(1) > pedestal2) | (points[:, 2] > top)
+    keep &= ((points - goal) ** 2).sum(1) > reach2
+    voxels = np.floor((points - GRID_LOW_M) * (1.0 / VOXEL_M)).astype(np.int64)
+    keep &= _in_boxes(voxels, np.full(3, -1), dims)
+    expected = np.flatnonzero(keep)
+    expected_cells = voxels[expected] @ np.array([dims[1] * dims[2], dims[2], 1])
+    assert 0 < len(expected) < len(points)
+    np.testing.assert_array_equal(index, expected)
+    np.testing.assert_array_equal(cells, expected_cells)
+    np.testing.assert_array_equal(new, ~grid[expected_cells])
+
+
+def test_any_in_boxes_matches_the_array_test():
+    rng = np.random.default_rng(2)
+    low = rng.uniform(-1, 0.8, (6, 3))
+    high = low + rng.uniform(0.0, 0.2, (6, 3))
+    for _ in range(50):
+        points = rng.uniform(-1, 1, (rng.integers(0, 40), 3))
+        expected = bool(_in_boxes(points, low, high).any()) if len(points) else False
+        assert K.any_in_boxes(points, low, high) == expected
