@@ -11,8 +11,22 @@ from clamgen.experiments.depth_shield import (
     GRID_LOW_M,
     VOXEL_M,
     _in_boxes,
-    _segment_distance,
 )
+
+
+def _segment_distance(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """(P, S) distances of points (P, 3) to segments from `starts` to `ends` (S, 3), by
+    matrix products (the squared distance expanded; exact to far below a millimetre at arm
+    scale)."""
+    axis = ends - starts
+    length2 = np.maximum((axis * axis).sum(1), 1e-12)
+    along = points @ axis.T - (starts * axis).sum(1)  # (p - s) . a
+    t = np.clip(along / length2, 0.0, 1.0)
+    to_start2 = (
+        (points * points).sum(1)[:, None] - 2.0 * points @ starts.T + (starts * starts).sum(1)
+    )
+    squared = to_start2 - 2.0 * t * along + t * t * length2
+    return np.sqrt(np.maximum(squared, 0.0))
 
 
 def _segments(rng, count):

@@ -189,3 +189,107 @@ def any_in_boxes(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> bool:
             if _in_box(points, i, low[b], high[b]):
                 return True
     return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _behind_hiding_surface(points: np.ndarray, i: int, views: tuple) -> bool:
+    """Whether no view has seen point i of `points` free and one has seen only a hiding
+    surface in front of it. `views`: the cameras' positions (V, 3), rotations (V, 3, 3) and
+    intrinsics (V, 4: fx, fy, cx, cy), the image height and width, and per pixel (flat over
+    views) the deepest depth seen (float32), whether that surface hides, and the tolerance
+    (float32) within which a point counts as seen."""
+    positions, rotations, intrinsics, height, width, deepest, hides, tolerance = views
+    behind_hider = False
+    for v in range(positions.shape[0]):
+        local = np.zeros(3)
+        for j in range(3):
+            for k in range(3):
+                local[j] += (points[i, k] - positions[v, k]) * rotations[v, k, j]
+        depth = -local[2]
+        if not depth > 0.0:
+            continue
+        fx, fy, cx, cy = intrinsics[v, 0], intrinsics[v, 1], intrinsics[v, 2], intrinsics[v, 3]
+        col = np.int64(np.floor(cx + fx * local[0] / max(depth, 1e-6)))
+        row = np.int64(np.floor(cy - fy * local[1] / max(depth, 1e-6)))
+        if col < 0 or col >= width or row < 0 or row >= height:
+            continue
+        pixel = (v * height + row) * width + col
+        if depth > deepest[pixel] + tolerance:
+            behind_hider = behind_hider or hides[pixel]
+        else:
+            return False  # seen free in this view
+    return behind_hider
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _filled(points: np.ndarray, i: int, filled: tuple) -> bool:
+    """Whether point i of `points` lies in a voxel whose centre is within `reach[s]` of a
+    segment s the hand filled. `filled`: the segments' starts and ends (S, 3), their reach
+    (S,), and the voxel grid's corner (3,), edge and size (3,)."""
+    starts, ends, reach, low, voxel, dims = filled
+    centre = np.empty(3)
+    for k in range(3):
+        index = np.int64(np.floor((points[i, k] - low[k]) * (1.0 / voxel)))
+        if index <= -1 or index >= dims[k]:
+            return False
+        centre[k] = low[k] + (index + 0.5) * voxel
+    centres = centre.reshape(1, 3)
+    for s in range(starts.shape[0]):
+        axis = ends[s] - starts[s]
+        if _segment_distance2(centres, 0, starts[s], axis, (axis * axis).sum()) <= reach[s] ** 2:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _near_any(points: np.ndarray, i: int, others: np.ndarray, near2: float) -> bool:
+    """Whether any of `others` (P, 3) lies nearer than sqrt(`near2`) to point i of `points`."""
+    for j in range(others.shape[0]):
+        d0 = points[i, 0] - others[j, 0]
+        d1 = points[i, 1] - others[j, 1]
+        d2 = points[i, 2] - others[j, 2]
+        if d0 * d0 + d1 * d1 + d2 * d2 < near2:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def hidden_points(points: np.ndarray, views: tuple, filled: tuple) -> np.ndarray:
+    """Whether each of `points` (P, 3) is hidden: behind a hiding surface in the views and
+    not filled by the hand (`views`, `filled` as for `_behind_hiding_surface`, `_filled`)."""
+    out = np.zeros(points.shape[0], np.bool_)
+    for i in range(points.shape[0]):
+        out[i] = _behind_hiding_surface(points, i, views) and not _filled(points, i, filled)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def hidden_configurations(
+    shells: np.ndarray, obstacle: np.ndarray, near_m: float, views: tuple, filled: tuple
+) -> np.ndarray:
+    """Per configuration b, whether a point of its shell `shells[b]` (B, S, 3) is hidden
+    (`hidden_points`) within `near_m` of a point of `obstacle` (P, 3): (B,)."""
+    out = np.zeros(shells.shape[0], np.bool_)
+    if obstacle.shape[0] == 0:
+        return out
+    # Only shell points in the box around the obstacle points widened by `near_m` (and a
+    # rounding allowance) can be near one.
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for j in range(obstacle.shape[0]):
+        for k in range(3):
+            low[k] = min(low[k], obstacle[j, k])
+            high[k] = max(high[k], obstacle[j, k])
+    low -= near_m + 1e-4
+    high += near_m + 1e-4
+    for b in range(shells.shape[0]):
+        shell = shells[b]
+        for i in range(shell.shape[0]):
+            if (
+                _in_box(shell, i, low, high)
+                and _behind_hiding_surface(shell, i, views)
+                and _near_any(shell, i, obstacle, near_m * near_m)
+                and not _filled(shell, i, filled)
+            ):
+                out[b] = True
+                break
+    return out

@@ -26,6 +26,8 @@ from scipy.spatial import cKDTree
 from clamgen.experiments.depth_kernels import (
     any_in_boxes,
     capsule_clearances,
+    hidden_configurations,
+    hidden_points,
     lift_pixels,
     surface_candidates,
     within_capsules,
@@ -74,6 +76,7 @@ SHADOW_SPACING_M = 0.015
 SHADOW_TOLERANCE_M = 0.01
 """A point less than this behind the deepest depth seen at its pixel counts as seen (the
 stored depth's step is 8.6 mm)."""
+_SHADOW_TOLERANCE = np.float32(SHADOW_TOLERANCE_M)  # (added to float32 depths)
 HIDDEN_CLEARANCE_M = -0.01
 """The clearance `DepthClearance` gives a configuration that reaches into hidden space."""
 DEPTH_OF_CODE = uint8_to_depth(np.arange(256, dtype=np.uint8))
@@ -98,21 +101,6 @@ def _in_boxes(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarr
         this = (column > low[..., axis]) & (column < high[..., axis])
         inside = this if inside is None else inside & this
     return inside
-
-
-def _segment_distance(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """(P, S) distances of points (P, 3) to segments from `starts` to `ends` (S, 3), by
-    matrix products (the squared distance expanded; exact to far below a millimetre at arm
-    scale)."""
-    axis = ends - starts
-    length2 = np.maximum((axis * axis).sum(1), 1e-12)
-    along = points @ axis.T - (starts * axis).sum(1)  # (p - s) . a
-    t = np.clip(along / length2, 0.0, 1.0)
-    to_start2 = (
-        (points * points).sum(1)[:, None] - 2.0 * points @ starts.T + (starts * starts).sum(1)
-    )
-    squared = to_start2 - 2.0 * t * along + t * t * length2
-    return np.sqrt(np.maximum(squared, 0.0))
 
 
 class ArmCapsules:
@@ -468,6 +456,7 @@ class ArmShadow:
         # filled (voxels whose centre lies within a half diagonal of a geom) is free.
         self._filled_starts: list[np.ndarray] = []
         self._filled_ends: list[np.ndarray] = []
+        self._filled_segments: tuple | None = None  # (their concatenation, once a step)
 
     def update(self, images: np.ndarray, joints: np.ndarray) -> None:
         """Deepen each pixel's seen depth with `images` (taken at `joints`) and take the space
@@ -493,83 +482,61 @@ class ArmShadow:
             return  # the arm stood still (pressed against an obstacle): nothing newly filled
         self._filled_starts.append(starts)
         self._filled_ends.append(ends)
+        self._filled_segments = None
 
-    def _filled(self, points: np.ndarray) -> np.ndarray:
-        """Which of `points` lie in a voxel the distal geoms filled at a configuration seen
-        (its centre within a half diagonal of a geom's surface)."""
-        voxels, inside = self.occupancy.voxels(points)
-        out = np.zeros(len(points), bool)
-        if not self._filled_starts or not inside.any():
-            return out
-        centres = GRID_LOW_M + (voxels[inside] + 0.5) * VOXEL_M
-        starts, ends = np.concatenate(self._filled_starts), np.concatenate(self._filled_ends)
-        reach = np.tile(self._reach, len(self._filled_starts))
-        out[inside] = (_segment_distance(centres, starts, ends) <= reach).any(axis=1)
-        return out
+    def _views(self) -> tuple:
+        """The cameras and what each pixel has seen, for the compiled tests."""
+        _, height, width = self.occupancy.shape
+        return (
+            self.positions,
+            self.rotations,
+            self.intrinsics,
+            height,
+            width,
+            self.deepest,
+            self.hides,
+            _SHADOW_TOLERANCE,
+        )
+
+    def _filled(self) -> tuple:
+        """The segments the hand filled (its geoms' axes at every configuration seen) with
+        their reach, and the voxel grid, for the compiled tests."""
+        if self._filled_segments is None:
+            starts = np.concatenate(self._filled_starts or [np.empty((0, 3))])
+            ends = np.concatenate(self._filled_ends or [np.empty((0, 3))])
+            reach = np.tile(self._reach, len(self._filled_starts))
+            self._filled_segments = (starts, ends, reach)
+        dims = self.occupancy._dims
+        return (*self._filled_segments, GRID_LOW_M, VOXEL_M, dims)
 
     def hidden(self, joints: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
         """Whether the distal geoms at each of joints (B, 6) reach into hidden space within
         `near_m` of a point of `obstacle` (P, 3) seen so far: (B,)."""
         joints = np.atleast_2d(joints)
         frames = forward_kinematics(np.asarray(joints, np.float64))
-        points = np.empty((len(joints), len(self._shell), 3))
-        for frame, mine in self._shell_groups:
-            rotation, origin = frames[:, frame, :3, :3], frames[:, frame, None, :3, 3]
-            points[:, mine] = self._shell[mine] @ rotation.transpose(0, 2, 1) + origin
-        flat = points.reshape(-1, 3)
-        out = np.zeros(len(flat), bool)
         # Obstacle points that can lie within `near_m` of the shell: those in a box around
         # it (around the frames' origins, widened by each group's extent: a superset).
         origins = frames[:, self._group_frames, :3, 3]  # B, groups, 3
         widen = (self._group_radii + self.near_m + SHADOW_SPACING_M)[:, None]
         low, high = (origins - widen).min(axis=(0, 1)), (origins + widen).max(axis=(0, 1))
         obstacle = obstacle[_in_boxes(obstacle, low, high)]
-        if len(obstacle):
-            # Only shell points in the box around those obstacle points widened by `near_m`
-            # (and a rounding allowance) can be near one. Then the cheap tests first: behind
-            # a hiding surface in the views, then near seen obstacle surface, then not filled
-            # by the hand before.
-            widen = self.near_m + 1e-4
-            box = _in_boxes(flat, obstacle.min(axis=0) - widen, obstacle.max(axis=0) + widen)
-            candidates = np.flatnonzero(box)
-            candidates = candidates[self._behind_hiding_surface(flat[candidates])]
-            if len(candidates):
-                gap2 = (
-                    (flat[candidates] ** 2).sum(1)[:, None]
-                    - 2.0 * flat[candidates] @ obstacle.T
-                    + (obstacle**2).sum(1)
-                )
-                candidates = candidates[gap2.min(axis=1) < self.near_m**2]
-            if len(candidates):
-                out[candidates[~self._filled(flat[candidates])]] = True
-        return out.reshape(points.shape[:2]).any(axis=1)
+        if len(obstacle) == 0:
+            return np.zeros(len(joints), bool)
+        points = np.empty((len(joints), len(self._shell), 3))
+        for frame, mine in self._shell_groups:
+            rotation, origin = frames[:, frame, :3, :3], frames[:, frame, None, :3, 3]
+            points[:, mine] = self._shell[mine] @ rotation.transpose(0, 2, 1) + origin
+        # Per configuration, the cheap tests first: in the box around the obstacle points,
+        # behind a hiding surface in the views, near seen obstacle surface, not filled by
+        # the hand before (compiled: each configuration stops at its first hidden point).
+        return hidden_configurations(points, obstacle, self.near_m, self._views(), self._filled())
 
     def hidden_points(self, points: np.ndarray) -> np.ndarray:
         """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had a
         hiding surface (the arm, or with `behind_surfaces` any) in front of them since the
         episode began (space the hand filled is free)."""
-        hidden = self._behind_hiding_surface(points)
-        hidden[hidden] = ~self._filled(points[hidden])
-        return hidden
-
-    def _behind_hiding_surface(self, points: np.ndarray) -> np.ndarray:
-        """Which of `points` no view has seen free and one has seen only a hiding surface
-        (the arm's, or with `behind_surfaces` any) in front of."""
-        occupancy = self.occupancy
-        views, height, width = occupancy.shape
-        local = (points - self.positions[:, None]) @ self.rotations  # V, P, 3 in each camera's
-        depth = -local[..., 2]
-        fx, fy, cx, cy = (self.intrinsics[:, i, None] for i in range(4))
-        safe = np.maximum(depth, 1e-6)
-        cols = np.floor(cx + fx * local[..., 0] / safe).astype(np.int64)
-        rows = np.floor(cy - fy * local[..., 1] / safe).astype(np.int64)
-        framed = (depth > 0) & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
-        pixel = np.arange(views)[:, None] * height * width + np.where(
-            framed, rows * width + cols, 0
-        )
-        behind = framed & (depth > self.deepest[pixel] + SHADOW_TOLERANCE_M)
-        seen = framed & ~behind
-        return ~seen.any(axis=0) & (behind & self.hides[pixel]).any(axis=0)
+        points = np.asarray(points, np.float64)
+        return hidden_points(points, self._views(), self._filled())
 
 
 def _capsule_shell(radius: float, half_length: float) -> np.ndarray:
