@@ -79,14 +79,14 @@ def test_lift_pixels_matches_the_array_formula():
     origins = rng.uniform(-1, 1, (count, 3)).astype(np.float32)
     rays = rng.normal(0, 1, (count, 3)).astype(np.float32)
     far, low = np.float32(1.5), np.float32(0.1)
-    for previous in (last, np.empty(0, np.uint8)):
-        changed = codes > previous if len(previous) else np.ones(count, bool)
+    for changed in (codes > last, np.ones(count, bool)):
         depth = DEPTH_OF_CODE[codes]
         height = origins[:, 2] + depth * rays[:, 2]
         keep = np.flatnonzero(changed & (depth < far) & (height > low))
         expected = (origins[keep] + depth[keep, None] * rays[keep]).astype(np.float64)
-        points, pixels = K.lift_pixels(codes, previous, DEPTH_OF_CODE, origins, rays, far, low)
-        np.testing.assert_array_equal(pixels, keep)
+        pixels = np.flatnonzero(changed)
+        points, kept = K.lift_pixels(codes, pixels, DEPTH_OF_CODE, origins, rays, far, low)
+        np.testing.assert_array_equal(kept, keep)
         np.testing.assert_array_equal(points, expected)
 
 

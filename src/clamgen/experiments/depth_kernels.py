@@ -106,34 +106,31 @@ def capsule_clearances(
 @njit(cache=True, nogil=True)
 def lift_pixels(
     codes: np.ndarray,
-    last: np.ndarray,
+    pixels: np.ndarray,
     depth_of_code: np.ndarray,
     origins: np.ndarray,
     rays: np.ndarray,
     far_m: np.float32,
     min_height_m: np.float32,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The world points (N, 3) and flat indices (N,) of the depth pixels (stored codes,
-    flattened over views) nearer than `far_m` whose point lies higher than `min_height_m`;
-    with `last` (the codes of the previous call; empty: none), only of those whose code grew.
-    In float32 throughout, as the array code computes it (`far_m`, `min_height_m` float32)."""
-    pixels = np.empty(codes.shape[0], np.int64)
+    """Of `pixels` (flat indices into the depth codes `codes`, flattened over views), those
+    nearer than `far_m` whose point lies higher than `min_height_m`: their world points
+    (N, 3) and indices (N,). In float32 throughout, as the array code computes it (`far_m`,
+    `min_height_m` float32)."""
+    keep = np.empty(pixels.shape[0], np.int64)
     count = 0
-    for i in range(codes.shape[0]):
-        if last.shape[0] and codes[i] <= last[i]:
-            continue
+    for i in pixels:
         depth = depth_of_code[codes[i]]
         if depth < far_m and origins[i, 2] + depth * rays[i, 2] > min_height_m:
-            pixels[count] = i
+            keep[count] = i
             count += 1
-    pixels = pixels[:count]
+    keep = keep[:count]
     points = np.empty((count, 3))
     for j in range(count):
-        i = pixels[j]
-        depth = depth_of_code[codes[i]]
+        depth = depth_of_code[codes[keep[j]]]
         for k in range(3):
-            points[j, k] = origins[i, k] + depth * rays[i, k]
-    return points, pixels
+            points[j, k] = origins[keep[j], k] + depth * rays[keep[j], k]
+    return points, keep
 
 
 @njit(cache=True, nogil=True)

@@ -84,7 +84,6 @@ DEPTH_OF_CODE = uint8_to_depth(np.arange(256, dtype=np.uint8))
 _FAR_CLIP = np.float32(FAR_CLIP_M)
 _ABOVE_TABLE_Z = np.float32(C.TABLE_TOP_Z_M + ABOVE_TABLE_M)
 """The lift's thresholds in float32, as its depths and heights (`lift_pixels`)."""
-_NONE = np.empty(0, np.uint8)
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -265,9 +264,12 @@ class DepthOccupancy:
                 f"got {images.shape}"
             )
         codes = images[:, -1].reshape(-1)  # RGBD or depth alone: depth comes last
-        last = self._last_depth if changed_only and self._last_depth is not None else _NONE
+        if changed_only and self._last_depth is not None:
+            pixels = np.flatnonzero(codes > self._last_depth)
+        else:
+            pixels = np.arange(len(codes))
         points, keep = lift_pixels(
-            codes, last, DEPTH_OF_CODE, self.origins, self.rays, _FAR_CLIP, _ABOVE_TABLE_Z
+            codes, pixels, DEPTH_OF_CODE, self.origins, self.rays, _FAR_CLIP, _ABOVE_TABLE_Z
         )
         if changed_only:
             self._last_depth = codes.copy()
