@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from clamgen.agents import encoders
 from clamgen.agents.aux_losses import (
     AUX_LOSSES,
     AuxLoss,
@@ -137,7 +138,8 @@ def test_legacy_state_dict_keys_still_load():
         {"target_encoder": "online", "encoder_bf16": True},
     ],
 )
-def test_speed_switches_train_and_act(kwargs):
+def test_speed_switches_train_and_act(kwargs, monkeypatch):
+    monkeypatch.setattr(encoders, "native_bf16", lambda device_type: True)
     bf16 = kwargs.pop("encoder_bf16", False)
     cfg = config(**kwargs)
     cfg = dataclasses.replace(cfg, encoder=dataclasses.replace(cfg.encoder, bf16_autocast=bf16))
@@ -162,7 +164,8 @@ def test_online_target_skips_the_target_encoder():
         config(target_encoder="momentum")
 
 
-def test_bf16_convs_stay_close_to_float32():
+def test_bf16_convs_stay_close_to_float32(monkeypatch):
+    monkeypatch.setattr(encoders, "native_bf16", lambda device_type: True)
     cfg = config()
     fp32 = ResidualAgent(cfg, base_agent())
     bf16_cfg = dataclasses.replace(
@@ -228,3 +231,39 @@ def test_behaviour_cloning_pulls_the_mean_action_towards_the_demonstrations():
     assert distance(cloning) < distance(plain)
     with pytest.raises(ValueError, match=r"agent\.bc_weight"):
         config(bc_weight=-1.0)
+
+
+def test_bf16_autocast_runs_float32_where_bf16_is_emulated(monkeypatch):
+    """On a CPU without bf16 in hardware the bf16 switch changes nothing: float32 exactly."""
+    monkeypatch.setattr(encoders, "native_bf16", lambda device_type: False)
+    cfg = config()
+    fp32 = ResidualAgent(cfg, base_agent())
+    bf16_cfg = dataclasses.replace(
+        cfg, encoder=dataclasses.replace(cfg.encoder, bf16_autocast=True)
+    )
+    bf16 = ResidualAgent(bf16_cfg, base_agent())
+    bf16.load_state_dict(fp32.state_dict())
+    images = torch.as_tensor(batch()["obs"]["images"][:, :, :, 4:-4, 4:-4])
+    with torch.no_grad():
+        torch.testing.assert_close(
+            bf16.critic.encoder(images), fp32.critic.encoder(images), rtol=0, atol=0
+        )
+
+
+def test_emulated_bf16_can_be_forced(monkeypatch):
+    monkeypatch.setattr(encoders, "native_bf16", lambda device_type: False)
+    monkeypatch.setenv(encoders.EMULATED_BF16_ENV, "1")
+    cfg = config()
+    bf16_cfg = dataclasses.replace(
+        cfg, encoder=dataclasses.replace(cfg.encoder, bf16_autocast=True)
+    )
+    fp32, bf16 = ResidualAgent(cfg, base_agent()), ResidualAgent(bf16_cfg, base_agent())
+    bf16.load_state_dict(fp32.state_dict())
+    images = torch.as_tensor(batch()["obs"]["images"][:, :, :, 4:-4, 4:-4])
+    with torch.no_grad():
+        assert not torch.equal(bf16.critic.encoder(images), fp32.critic.encoder(images))
+
+
+def test_native_bf16_only_where_the_hardware_has_it():
+    assert encoders.native_bf16("meta") is False
+    assert isinstance(encoders.native_bf16("cpu"), bool)
