@@ -8,9 +8,12 @@ has (fewer collisions?).
     python results/stage2/shield/validate_hybrids.py --setting checks   # --depth-plan-checks 10000
     python results/stage2/shield/validate_hybrids.py --setting hidden --views 3 2
     python results/stage2/shield/validate_hybrids.py --setting fine --views 3 2
+    python results/stage2/shield/validate_hybrids.py --setting hybrid          # session 19,
+    python results/stage2/shield/validate_hybrids.py --setting hybrid-checks   # a fresh block
 
 Each hybrid (`BEFORE[v]`, v = 3, 2, 1 views: `depth_planner.HYBRID` as it was before these
-protocols, with the shipped policies; and its variants) acts on
+protocols, with the shipped policies; and its variants; the `hybrid*` settings start from
+`HYBRID[v]` as it is now) acts on
 `--num-blocked` blocked and `--num-standard` standard validation tasks from `--offset` into
 the validation range; the same tasks for every setting. Appends one JSON line per (views,
 family) to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act;
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import platform
 from dataclasses import replace
 from pathlib import Path
 
@@ -50,7 +54,15 @@ SETTINGS = {
     # The 1-view hybrid's 128-pixel depth camera (`--depth-fine-size 128`) for any number of
     # views.
     "fine": lambda views: replace(BEFORE[views], fine_depth_size=128),
+    # Session 19, on a fresh block (--offset 50000): the hybrids as they are now, with the
+    # planner's time budget and with the budget in checks.
+    "hybrid": lambda views: HYBRID[views],
+    "hybrid-checks": lambda views: replace(HYBRID[views], plan_checks=PLAN_CHECKS),
 }
+OFFSET = {"hybrid": 50_000, "hybrid-checks": 50_000}
+"""Where in the validation range each setting's tasks start (40000 for the others)."""
+BASELINE = {"checks": "time", "hidden": "time", "fine": "time", "hybrid-checks": "hybrid"}
+"""What each setting is compared with (on the same tasks)."""
 POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 
 
@@ -84,6 +96,9 @@ def run(setting: str, views: int, family: str, seeds: list[int]) -> dict:
         "act_median_ms": float(np.median(acts)),
         "act_p99_ms": float(np.percentile(acts, 99)),
         "act_max_ms": float(acts.max()),
+        "plans": int(getattr(hybrid, "num_plans", 0)),
+        "paths": int(getattr(hybrid, "num_paths", 0)),
+        "machine": f"{platform.machine()} {torch.backends.cpu.get_cpu_capability()}",
     }
 
 
@@ -92,20 +107,23 @@ def summary(lines: list[dict]) -> None:
     for views in (3, 2, 1):
         for family in ("blocked", "obstacles"):
             cells = []
-            committed = by.get(("time", views, family))
             for setting in SETTINGS:
                 line = by.get((setting, views, family))
                 if line is None:
                     continue
+                committed = by.get((BASELINE.get(setting), views, family))
                 cell = (
                     f"{setting}: success {np.mean(line['success']):.3f} "
                     f"collisions {np.mean(line['collided']):.3f} "
                     f"act median {line['act_median_ms']:.2f} ms p99 {line['act_p99_ms']:.0f} ms "
                     f"max {line['act_max_ms'] / 1e3:.2f} s"
                 )
-                if committed is not None and setting != "time":
+                if committed is not None:
                     same = np.mean(np.equal(committed["success"], line["success"]))
-                    cell += f" (same outcome as time on {same:.3f} of {len(line['success'])})"
+                    cell += (
+                        f" (same outcome as {BASELINE[setting]} on {same:.3f} of "
+                        f"{len(line['success'])})"
+                    )
                 cells.append(cell)
             print(f"{views} view(s), {family}: " + "; ".join(cells or ["-"]))
 
@@ -116,12 +134,15 @@ def main() -> None:
     parser.add_argument("--views", type=int, nargs="+", default=[3, 2, 1])
     parser.add_argument("--num-blocked", type=int, default=300)
     parser.add_argument("--num-standard", type=int, default=100)
-    parser.add_argument("--offset", type=int, default=40_000)
+    parser.add_argument(
+        "--offset", type=int, default=None, help="default: 50000 for hybrid*, else 40000"
+    )
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
     if not args.summary:
         torch.set_num_threads(1)
-        first = VALIDATION_SEEDS.start + args.offset
+        offset = OFFSET.get(args.setting, 40_000) if args.offset is None else args.offset
+        first = VALIDATION_SEEDS.start + offset
         counts = {"blocked": args.num_blocked, "obstacles": args.num_standard}
         for views in args.views:
             for family, count in counts.items():
