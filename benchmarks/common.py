@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import csv
-import platform
 import time
 from pathlib import Path
+
+from clamgen.experiments.machine import describe
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "benchmarks"
 
@@ -20,21 +21,10 @@ def best_rate(fn, num_items: int, repeats: int = 3) -> float:
     return num_items / best
 
 
-def machine() -> str:
-    """The architecture and the vector instructions torch uses on this CPU, and whether it
-    computes bf16 in hardware (the shipped policies' convs run in bf16 only there)."""
-    import torch
-
-    from clamgen.agents.encoders import native_bf16
-
-    bf16 = "bf16 in hardware" if native_bf16("cpu") else "no bf16 in hardware"
-    return f"{platform.machine()} {torch.backends.cpu.get_cpu_capability()}, {bf16}"
-
-
 def write_csv(name: str, rows: list[dict]) -> Path:
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     path = RESULTS_DIR / f"{name}.csv"
-    this_machine = machine()
+    this_machine = describe()
     for row in rows:
         row.setdefault("machine", this_machine)
     with path.open("w", newline="") as f:

@@ -42,6 +42,13 @@ POLICIES_HELP = (
 PRESETS_HELP = f"Presets: {', '.join(PRESET_NAMES)} (clamgen/presets/), or a .toml path."
 
 
+def describe_machine() -> str:
+    """The CPU an evaluation ran on (`clamgen.experiments.machine`; imports torch)."""
+    from clamgen.experiments.machine import describe
+
+    return describe()
+
+
 @dataclass(frozen=True)
 class DemoConfig:
     """Render the scene from every camera and roll out the IK-interpolation policy."""
@@ -495,6 +502,7 @@ def evaluate_table(config: EvalConfig) -> list:
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
         "command": "clamgen eval " + shlex.join(sys.argv[2:]),
+        "machine": describe_machine(),
         **({"note": note} if note else {}),
     }
     write_table1(rows, out, meta)
@@ -637,6 +645,7 @@ def _evaluate_other_env(config: EvalConfig, policy, source, label: str, env_id: 
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
         "command": "clamgen eval " + shlex.join(sys.argv[2:]),
+        "machine": describe_machine(),
         **summary,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -754,6 +763,7 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
         "num_tasks": config.num_tasks,
         "first_seed": config.first_seed,
         "command": "clamgen eval " + shlex.join(sys.argv[2:]),
+        "machine": describe_machine(),
     }
     write_table2(rows, out, meta)
     print(table2_markdown(rows))

@@ -1,6 +1,7 @@
 """Tables 1 and 2: well-formed rows, path ratios on the same tasks, Markdown and JSON."""
 
 import json
+import platform
 
 import numpy as np
 import pytest
@@ -164,6 +165,8 @@ def test_table2_command_runs_both_families_on_test_seeds(tmp_path):
     assert rows[1].success_rate == 0.0 and rows[1].collision_rate == 1.0  # blind path blocked
     data = json.loads((tmp_path / "ik.json").read_text())
     assert [row["family"] for row in data["rows"]] == ["obstacles", "blocked"]
+    assert data["machine"].startswith(platform.machine())  # the CPU it ran on, and its bf16
+    assert "bf16 in hardware" in data["machine"]
     loaded = [ObstacleRow(**row) for row in data["rows"]]
     assert (tmp_path / "ik.md").read_text() == table2_markdown(loaded) + "\n"
     with pytest.raises(SystemExit, match="families"):

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 from dataclasses import replace
 from pathlib import Path
 
@@ -36,6 +35,7 @@ from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import HYBRID, DepthGuard
 from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.machine import describe
 from clamgen.experiments.policies import load_policy
 
 HERE = Path(__file__).resolve().parent
@@ -98,7 +98,7 @@ def run(setting: str, views: int, family: str, seeds: list[int]) -> dict:
         "act_max_ms": float(acts.max()),
         "plans": int(getattr(hybrid, "num_plans", 0)),
         "paths": int(getattr(hybrid, "num_paths", 0)),
-        "machine": f"{platform.machine()} {torch.backends.cpu.get_cpu_capability()}",
+        "machine": describe(),
     }
 
 
