@@ -54,7 +54,7 @@ SETTINGS = {
     # The 1-view hybrid's 128-pixel depth camera (`--depth-fine-size 128`) for any number of
     # views.
     "fine": lambda views: replace(BEFORE[views], fine_depth_size=128),
-    # Session 19, on a fresh block (--offset 50000): the hybrids as they are now, with the
+    # Session 20, on a fresh block (--offset 50000): the hybrids as they are now, with the
     # planner's time budget and with the budget in checks.
     "hybrid": lambda views: HYBRID[views],
     "hybrid-checks": lambda views: replace(HYBRID[views], plan_checks=PLAN_CHECKS),
