@@ -164,19 +164,24 @@ def test_online_target_skips_the_target_encoder():
         config(target_encoder="momentum")
 
 
-def test_bf16_convs_stay_close_to_float32(monkeypatch):
-    monkeypatch.setattr(encoders, "native_bf16", lambda device_type: True)
+def _encodings_fp32_and_bf16() -> tuple[torch.Tensor, torch.Tensor]:
+    """The same weights' encodings of a batch's images, without and with bf16 autocast."""
     cfg = config()
-    fp32 = ResidualAgent(cfg, base_agent())
     bf16_cfg = dataclasses.replace(
         cfg, encoder=dataclasses.replace(cfg.encoder, bf16_autocast=True)
     )
-    bf16 = ResidualAgent(bf16_cfg, base_agent())
+    fp32, bf16 = ResidualAgent(cfg, base_agent()), ResidualAgent(bf16_cfg, base_agent())
     bf16.load_state_dict(fp32.state_dict())
     images = torch.as_tensor(batch()["obs"]["images"][:, :, :, 4:-4, 4:-4])
     with torch.no_grad():
-        a, b = fp32.critic.encoder(images), bf16.critic.encoder(images)
+        return fp32.critic.encoder(images), bf16.critic.encoder(images)
+
+
+def test_bf16_convs_stay_close_to_float32(monkeypatch):
+    monkeypatch.setattr(encoders, "native_bf16", lambda device_type: True)
+    a, b = _encodings_fp32_and_bf16()
     assert a.dtype == b.dtype == torch.float32
+    assert not torch.equal(a, b)
     assert (a - b).abs().max() < 0.05  # tanh-bounded features, bf16's 8-bit mantissa
 
 
@@ -236,32 +241,16 @@ def test_behaviour_cloning_pulls_the_mean_action_towards_the_demonstrations():
 def test_bf16_autocast_runs_float32_where_bf16_is_emulated(monkeypatch):
     """On a CPU without bf16 in hardware the bf16 switch changes nothing: float32 exactly."""
     monkeypatch.setattr(encoders, "native_bf16", lambda device_type: False)
-    cfg = config()
-    fp32 = ResidualAgent(cfg, base_agent())
-    bf16_cfg = dataclasses.replace(
-        cfg, encoder=dataclasses.replace(cfg.encoder, bf16_autocast=True)
-    )
-    bf16 = ResidualAgent(bf16_cfg, base_agent())
-    bf16.load_state_dict(fp32.state_dict())
-    images = torch.as_tensor(batch()["obs"]["images"][:, :, :, 4:-4, 4:-4])
-    with torch.no_grad():
-        torch.testing.assert_close(
-            bf16.critic.encoder(images), fp32.critic.encoder(images), rtol=0, atol=0
-        )
+    a, b = _encodings_fp32_and_bf16()
+    torch.testing.assert_close(b, a, rtol=0, atol=0)
 
 
 def test_emulated_bf16_can_be_forced(monkeypatch):
     monkeypatch.setattr(encoders, "native_bf16", lambda device_type: False)
     monkeypatch.setenv(encoders.EMULATED_BF16_ENV, "1")
-    cfg = config()
-    bf16_cfg = dataclasses.replace(
-        cfg, encoder=dataclasses.replace(cfg.encoder, bf16_autocast=True)
-    )
-    fp32, bf16 = ResidualAgent(cfg, base_agent()), ResidualAgent(bf16_cfg, base_agent())
-    bf16.load_state_dict(fp32.state_dict())
-    images = torch.as_tensor(batch()["obs"]["images"][:, :, :, 4:-4, 4:-4])
-    with torch.no_grad():
-        assert not torch.equal(bf16.critic.encoder(images), fp32.critic.encoder(images))
+    a, b = _encodings_fp32_and_bf16()
+    assert not torch.equal(a, b)
+    assert (a - b).abs().max() < 0.05
 
 
 def test_native_bf16_only_where_the_hardware_has_it():
