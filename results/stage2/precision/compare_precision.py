@@ -4,7 +4,7 @@ hardware: same outcomes, task by task?
 The students were trained and evaluated with their convs under bf16 autocast
 (`EncoderConfig.bf16_autocast`) on CPUs that compute bf16 in hardware. On a CPU that emulates
 it (AVX2 only), the encoder now runs its convs in float32 (`clamgen.agents.encoders.native_bf16`),
-about 2.7x faster per act for 3 views. `--precision bf16` runs the emulated bf16 convs instead
+about 2.4x faster per act for 3 views. `--precision bf16` runs the emulated bf16 convs instead
 (`CLAMGEN_EMULATED_BF16=1`, the numbers of the committed rows up to rounding), `--precision
 fp32` the default here. Each shipped policy (alone, or with `--hybrid` as
 `clamgen eval --depth-hybrid` acts) runs on `--num-blocked` blocked and `--num-standard`

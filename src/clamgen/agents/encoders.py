@@ -55,8 +55,8 @@ to the numbers of machines that compute it in hardware)."""
 def native_bf16(device_type: str) -> bool:
     """Whether `device_type` ("cpu", "cuda", ...) computes bf16 convs in hardware: CUDA GPUs
     that support bf16, x86 CPUs with AVX-512 BF16 or AMX. Other CPUs (AVX2 only, for one)
-    emulate bf16 in oneDNN: there the shipped 3-view policy acted in 2.6 ms a step under bf16
-    autocast against 0.97 ms in float32 (1 thread, AVX2; see `EncoderConfig.bf16_autocast`)."""
+    emulate bf16 in oneDNN: there the shipped 3-view policy acted in 2.4 ms a step under bf16
+    autocast against 1.0 ms in float32 (1 thread, AVX2; `results/stage2/precision/`)."""
     if device_type == "cuda":
         return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
     if device_type == "cpu":
