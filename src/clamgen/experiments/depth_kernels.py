@@ -3,9 +3,9 @@
 The shield tests every depth pixel the arm's motion changed (about 1400 a step for three
 128-pixel views) against the arm's capsules, every configuration it checks against the
 obstacle points seen, and, for one view, the points of the arm's shell against the unseen
-space behind seen surfaces. In numpy each test is a dozen passes over (geoms, points) arrays, most
-of them spent on points already decided; these loops decide each point at its first geom
-within reach and skip the rest. They compute the same distances (in float64, point minus the
+space behind seen surfaces. In numpy each test is a dozen passes over (geoms, points)
+arrays, most of them spent on points already decided; these loops decide each point at its
+first geom within reach and skip the rest. They compute the same distances (in float64, point minus the
 nearest point of the segment, not an expanded square), so the shield's decisions are those
 of the array code except within rounding of a threshold.
 
