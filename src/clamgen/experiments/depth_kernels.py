@@ -5,9 +5,9 @@ The shield tests every depth pixel the arm's motion changed (about 1400 a step f
 obstacle points seen, and, for one view, the points of the arm's shell against the unseen
 space behind seen surfaces. In numpy each test is a dozen passes over (geoms, points)
 arrays, most of them spent on points already decided; these loops decide each point at its
-first geom within reach and skip the rest. They compute the same distances (in float64, point minus the
-nearest point of the segment, not an expanded square), so the shield's decisions are those
-of the array code except within rounding of a threshold.
+first geom within reach and skip the rest. They compute the same distances (in float64,
+point minus the nearest point of the segment, not an expanded square), so the shield's
+decisions are those of the array code except within rounding of a threshold.
 
 Compiled on first use (about a second each) and cached beside this file.
 """
