@@ -58,6 +58,11 @@ IK_ROTATION_TOL_RAD = 1e-4
 # vectors of length |sin q5|, which keeps ~1e-16 / |sin q5| accuracy. See
 # _wrist_singular_threshold for the larger value used near the shoulder singularity.
 _WRIST_SINGULAR_EPS = 1e-10
+# |cos q3| this close to 1 is the elbow at full stretch (or fully folded), up to rounding, and
+# is snapped to +-1: arccos's slope is infinite there, so a rounding of a few 1e-16 in cos q3
+# would become an elbow angle of 1e-8 rad, and which one depends on the machine's floating
+# point. (Snapping changes q3 by at most sqrt(2 * 1e-14) = 1.4e-7 rad and the tip by ~1e-14 m.)
+_ELBOW_STRETCH_EPS = 1e-14
 # Two solutions closer than this (~L2, modulo 2 pi) are the same solution; this also merges
 # the two coinciding branches at a singularity (elbow at full stretch, shoulder boundary).
 _DUPLICATE_TOL_RAD = 1e-6
@@ -447,6 +452,7 @@ def _ik_branches(
     # Law of cosines for the elbow. |c3| = 1 is the elbow at full stretch (or fully folded):
     # both elbow branches coincide, and tiny overshoots from rounding are clipped.
     c3 = (px * px + py * py - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
+    c3 = np.where(np.abs(np.abs(c3) - 1.0) < _ELBOW_STRETCH_EPS, np.sign(c3), c3)
     ok_elbow = np.abs(c3) <= 1.0 + tol
     elbow = np.arccos(np.clip(c3, -1.0, 1.0))
     q3 = np.stack([elbow, -elbow], axis=-1)  # (m, 2, 2, 2)
