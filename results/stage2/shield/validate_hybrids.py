@@ -8,7 +8,7 @@ has (fewer collisions?).
     python results/stage2/shield/validate_hybrids.py --setting checks   # --depth-plan-checks 10000
     python results/stage2/shield/validate_hybrids.py --setting hidden --views 3 2
     python results/stage2/shield/validate_hybrids.py --setting fine --views 3 2
-    python results/stage2/shield/validate_hybrids.py --setting hybrid          # session 19,
+    python results/stage2/shield/validate_hybrids.py --setting hybrid          # session 20,
     python results/stage2/shield/validate_hybrids.py --setting hybrid-checks   # a fresh block
 
 Each hybrid (`BEFORE[v]`, v = 3, 2, 1 views: `depth_planner.HYBRID` as it was before these

@@ -39,6 +39,7 @@ __all__ = [
     "LowDimEncoder",
     "MultiViewEncoder",
     "SpatialSoftmax",
+    "bf16_enabled",
     "conv_output_size",
     "fuse",
     "native_bf16",
@@ -63,6 +64,12 @@ def native_bf16(device_type: str) -> bool:
         checks = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
         return any(getattr(torch.cpu, name, lambda: False)() for name in checks)
     return False
+
+
+def bf16_enabled(device_type: str) -> bool:
+    """Whether `EncoderConfig.bf16_autocast` takes effect on `device_type`: where it computes
+    bf16 in hardware (:func:`native_bf16`), or anywhere with `CLAMGEN_EMULATED_BF16=1`."""
+    return native_bf16(device_type) or os.environ.get(EMULATED_BF16_ENV) == "1"
 
 
 @dataclass(frozen=True)
@@ -260,9 +267,7 @@ class MultiViewEncoder(nn.Module):
 
     def _trunk_features(self, trunk: nn.Module, images: torch.Tensor) -> torch.Tensor:
         cfg = self.config
-        bf16 = cfg.bf16_autocast and (
-            native_bf16(images.device.type) or os.environ.get(EMULATED_BF16_ENV) == "1"
-        )
+        bf16 = cfg.bf16_autocast and bf16_enabled(images.device.type)
         if bf16:  # uint8 -> bf16 directly: a float32 copy would cost a pass more
             x = to_unit_float(images, torch.bfloat16)
         else:
