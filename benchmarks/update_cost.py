@@ -2,14 +2,15 @@
 paper-faithful fp32 update measured in the same run.
 
     python benchmarks/update_cost.py [--preset residual-cpu] [--updates 40] [--repeats 3]
-        [--threads 1] [--baseline-rev REV] [--no-csv]
+        [--threads 1] [--device cpu] [--baseline-rev REV] [--no-csv]
 
 Every row builds the agent of the preset (default `residual-cpu`: 2 views, 56 px crops of
 64 px renders, batch 64) on the shipped base policy, warms it up, then times `--updates`
 updates on fixed random batches, best of `--repeats` passes (the rows take turns pass by
 pass, so other load falls on all of them alike). With `--baseline-rev REV` the first row
 is the same preset's update in the code at git revision REV (run from `git archive` in a
-subprocess), and every ratio is against it. Rows:
+subprocess), and every ratio is against it. `--device cuda` times the updates on a GPU (each
+pass ends with a synchronisation, so the time is the GPU's). Rows:
 
 - code at REV: the update before the rebuild (fp32, NCHW convs in chunks of 32);
 - fp32, previous conv layout: today's code (each view's projection once per pass, faster
@@ -90,37 +91,53 @@ def random_batch(config: Stage2Config, size: int, rng: np.random.Generator) -> d
     }
 
 
-def time_updates(agents: dict[str, ResidualAgent], batches: list[dict], repeats: int):
+def _synchronize(device: str) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize()
+
+
+def time_updates(
+    agents: dict[str, ResidualAgent], batches: list[dict], repeats: int, device: str = "cpu"
+):
     """Best mean seconds per update of each agent over `repeats` passes through `batches`.
     The agents take turns pass by pass, so load from other processes falls on all alike."""
     for agent in agents.values():
-        for batch in batches[:3]:  # warm-up: allocator, oneDNN kernel selection
+        for batch in batches[:3]:  # warm-up: allocator, oneDNN / cuDNN kernel selection
             agent.update(batch)
     best = dict.fromkeys(agents, float("inf"))
     for _ in range(repeats):
         for name, agent in agents.items():
+            _synchronize(device)
             start = time.perf_counter()
             for batch in batches:
                 agent.update(batch)
+            _synchronize(device)
             best[name] = min(best[name], (time.perf_counter() - start) / len(batches))
     return best
 
 
-def time_preset(preset: str, updates: int, repeats: int, options: dict[str, dict] | None):
-    """Seconds per update of the preset's agent with each of `options` (by row name; None:
-    the preset as it is, which is all that code from another revision understands)."""
+def time_preset(
+    preset: str,
+    updates: int,
+    repeats: int,
+    options: dict[str, dict] | None,
+    device: str = "cpu",
+):
+    """Seconds per update of the preset's agent on `device` with each of `options` (by row
+    name; None: the preset as it is, which is all that code from another revision
+    understands)."""
     config: Stage2Config = load_preset(preset, Stage2Config)
     base, _ = load_policy_agent(resolve_policy_path(config.base_policy))
     rng = np.random.default_rng(0)
     batches = [random_batch(config, config.agent.batch_size, rng) for _ in range(updates)]
-    if options is None:
-        agents = {"preset": ResidualAgent(config.agent, base)}
-    else:
-        agents = {
-            name: ResidualAgent(with_options(config.agent, row), base)
-            for name, row in options.items()
-        }
-    return time_updates(agents, batches, repeats)
+    rows = {"preset": {}} if options is None else options
+    agents = {
+        name: ResidualAgent(
+            dataclasses.replace(with_options(config.agent, row), device=device), base
+        )
+        for name, row in rows.items()
+    }
+    return time_updates(agents, batches, repeats, device)
 
 
 def time_revision(rev: str, args) -> float:
@@ -134,7 +151,7 @@ def time_revision(rev: str, args) -> float:
         env = dict(os.environ, PYTHONPATH=str(Path(tmp) / "src"))
         command = [sys.executable, __file__, "--plain", "--preset", args.preset]
         command += ["--updates", str(args.updates), "--repeats", str(args.repeats)]
-        command += ["--threads", str(args.threads)]
+        command += ["--threads", str(args.threads), "--device", args.device]
         out = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
     return float(out.stdout.split()[-1])
 
@@ -145,6 +162,7 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=40, help="updates per timed pass")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--device", default="cpu", help="torch device of the agents (cpu, cuda)")
     parser.add_argument(
         "--baseline-rev",
         default=None,
@@ -156,18 +174,19 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     if args.plain:  # the subprocess of time_revision: print seconds per update only
-        print(time_preset(args.preset, args.updates, args.repeats, None)["preset"])
+        print(time_preset(args.preset, args.updates, args.repeats, None, args.device)["preset"])
         return
     config: Stage2Config = load_preset(args.preset, Stage2Config)
     print(
         f"{args.preset}: batch {config.agent.batch_size}, {config.env.num_views} views, "
-        f"{config.agent.encoder.image_size} px crops, {args.threads} torch thread(s)"
+        f"{config.agent.encoder.image_size} px crops, {args.threads} torch thread(s), "
+        f"device {args.device}"
     )
     load_before = os.getloadavg()[0]
     timings = {}
     if args.baseline_rev:  # before and after the rows, the better of the two
         timings[f"code at {args.baseline_rev} (fp32)"] = time_revision(args.baseline_rev, args)
-    timings |= time_preset(args.preset, args.updates, args.repeats, OPTIONS)
+    timings |= time_preset(args.preset, args.updates, args.repeats, OPTIONS, args.device)
     if args.baseline_rev:
         name = f"code at {args.baseline_rev} (fp32)"
         timings[name] = min(timings[name], time_revision(args.baseline_rev, args))
@@ -180,6 +199,7 @@ def main() -> None:
                 "preset": args.preset,
                 "batch": config.agent.batch_size,
                 "threads": args.threads,
+                "device": args.device,
                 "ms_per_update": round(1e3 * seconds, 2),
                 "speedup_vs_reference": round(reference / seconds, 2),
                 # Other load on the machine (1-min load average, before and after the rows):
