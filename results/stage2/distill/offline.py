@@ -13,7 +13,9 @@ DAgger data, not DAgger: use it to compare losses and data, not as a final stude
 
 `--iterations K` uses the run's first K iterations only (how success grows with data);
 `--pool RUN ...` adds the data of other runs of the same teacher, their views cut to the
-student's (a 3-view run's data holds the first two cameras a 2-view student sees).
+student's (a 3-view run's data holds the first two cameras a 2-view student sees);
+`--relabel POLICY ...` replaces the teacher's labels by the mean of those policies' pre-squash
+means on each state (distilling an ensemble of students into one, `results/stage2/ensemble/`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ import argparse
 import dataclasses
 import json
 from pathlib import Path
+
+import numpy as np
+import torch
 
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import config_from_json, config_to_json
@@ -33,6 +38,24 @@ from clamgen.experiments.distill import (
 )
 from clamgen.experiments.stage2 import Stage2Config
 from clamgen.experiments.train import POLICY_NAME
+
+RELABEL_BATCH = 256
+
+
+def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
+    """(N, A) the mean over `agents` of their pre-squash means (deterministic, centre crops)
+    on the states of a data chunk, in batches of RELABEL_BATCH."""
+    out = np.empty_like(chunk["label"])
+    with torch.inference_mode():
+        for start in range(0, len(out), RELABEL_BATCH):
+            obs = {k: v[start : start + RELABEL_BATCH] for k, v in chunk.items() if k != "label"}
+            means = []
+            for agent in agents:
+                visual = agent.critic.encoder(agent._visual(obs, train=False))
+                low_dim = agent._actor_view(agent._state(obs))
+                means.append(agent._pre_squash(visual, low_dim)[0].numpy())
+            out[start : start + RELABEL_BATCH] = np.mean(means, axis=0)
+    return out
 
 
 def main() -> None:
@@ -54,6 +77,13 @@ def main() -> None:
         type=int,
         default=None,
         help="the student's mixture components (agent.actor_components; default: the run's)",
+    )
+    parser.add_argument(
+        "--relabel",
+        nargs="*",
+        default=[],
+        metavar="POLICY",
+        help="label every state with the mean of these policies' actions instead of the teacher's",
     )
     parser.add_argument(
         "--set",
@@ -84,6 +114,12 @@ def main() -> None:
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
     distiller = Distiller(DistillConfig(student=student, distill=settings))
     views = student.env.num_views
+    relabellers = []
+    if args.relabel:
+        from clamgen.experiments.policies import load_policy
+
+        torch.set_num_threads(student.loop.torch_threads)
+        relabellers = [load_policy(name)[0].agent for name in args.relabel]
     sources = [(args.run_dir, args.iterations), *((run, None) for run in args.pool)]
     for run, first in sources:
         paths = sorted(
@@ -97,6 +133,8 @@ def main() -> None:
                         f"{path} has {chunk['images'].shape[1]} views, fewer than {views}"
                     )
                 chunk["images"] = chunk["images"][:, :views]
+            if relabellers:
+                chunk["label"] = mean_labels(relabellers, chunk)
             distiller.data.add(chunk)
         print(f"{len(distiller.data)} samples after {run} ({len(paths[:first])} iterations)")
     print(f"{args.updates} updates ...")
@@ -108,6 +146,7 @@ def main() -> None:
         "source": str(args.run_dir),
         "iterations": args.iterations,
         "pool": [str(run) for run in args.pool],
+        "relabel": [str(name) for name in args.relabel],
         "samples": len(distiller.data),
         "updates": args.updates,
     }
@@ -128,6 +167,7 @@ def main() -> None:
         "source": str(args.run_dir),
         "iterations": args.iterations,
         "pool": [str(run) for run in args.pool],
+        "relabel": [str(name) for name in args.relabel],
         "samples": len(distiller.data),
         "changes": changes,
         "updates": args.updates,

@@ -1,0 +1,171 @@
+"""Do the 3-view students' errors average out? Their mean action against each one alone.
+
+The students of the shipped 3-view recipe reach 0.765 / 0.770 / 0.770 of the blocked test
+tasks over three training seeds, with blocked collision rates 0.135-0.170, while their teacher
+reaches 1.000. If the gap were the variance of regressing on one run's data (half the data
+costs 0.13 blocked, `results/stage2/distill/README.md`), the mean action of students trained
+on different seeds would do clearly better than each; if it is a bias they share (what the
+architecture, the views or the labels allow), the mean would do about as well as each.
+
+Members: the shipped `residual-3views` (seed 0) and the retrained seeds 1 and 2
+(`runs/reseed/d3-seed1|2/policy.pt`, `results/stage2/shield/camera_hybrid_seeds.py`). Each
+member alone and their mean (`MeanActionPolicy`: the average of the members' deterministic
+actions) run on the same `--num-blocked` blocked and `--num-standard` standard validation
+tasks from `--offset` into the validation range (70000: a block no earlier check used); one
+JSON line per (policy, family) goes to ensemble.jsonl (per task: success, collision,
+steps; the run's median act), skipping what is there. `--summary` prints success and
+collision rates with Wilson 95% intervals, and how often the mean succeeds where a member
+fails and the other way round (with the exact two-sided sign test's P on those tasks).
+
+Then whether one network can hold what the mean knows: `STUDENTS` are fresh students
+regressed on the pooled DAgger data of seeds 1 and 2, once with the members' mean action as
+the label and once with the teacher's (the control), same tasks.
+
+    python results/stage2/ensemble/ensemble.py
+    python results/stage2/ensemble/ensemble.py --policies distilled pooled
+    python results/stage2/ensemble/ensemble.py --summary
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[2]
+OUT = HERE / "ensemble.jsonl"
+MEMBERS = {
+    "seed0": "residual-3views",
+    "seed1r": str(ROOT / "runs" / "reseed" / "d3-seed1" / "policy.pt"),
+    "seed2r": str(ROOT / "runs" / "reseed" / "d3-seed2" / "policy.pt"),
+}
+MEAN = "mean"
+STUDENTS = {
+    "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
+    "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
+}
+"""Single students regressed on the pooled data of seeds 1 and 2 (`distill/offline.py`):
+labelled by the members' mean (`--relabel`), and by the teacher as collected (the control)."""
+FAMILIES = ("blocked", "obstacles")
+
+
+class MeanActionPolicy:
+    """The average of several policies' actions (each deterministic), one call each per step."""
+
+    def __init__(self, members: list) -> None:
+        self.members = members
+
+    def reset(self, env=None) -> None:
+        for member in self.members:
+            member.reset(env)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.mean([member.act(obs) for member in self.members], axis=0)
+
+
+def done() -> list[dict]:
+    if not OUT.exists():
+        return []
+    return [json.loads(line) for line in OUT.read_text().splitlines() if line]
+
+
+def load(name: str):
+    from clamgen.experiments.policies import load_policy
+
+    if name != MEAN:
+        policy, _, kwargs = load_policy({**MEMBERS, **STUDENTS}[name])
+        return policy, kwargs
+    loaded = [load_policy(path) for path in MEMBERS.values()]
+    kwargs = loaded[0][2]
+    if any(other[2] != kwargs for other in loaded[1:]):
+        raise SystemExit("the members observe with different env options")
+    return MeanActionPolicy([policy for policy, _, _ in loaded]), kwargs
+
+
+def run(name: str, family: str, seeds: list[int]) -> dict:
+    import torch
+
+    from clamgen.envs import ReachEnv
+    from clamgen.experiments.evaluate import evaluate
+    from clamgen.experiments.machine import describe
+
+    torch.set_num_threads(1)
+    policy, kwargs = load(name)
+    env = ReachEnv(num_obstacles=2, task_family=family, **kwargs)
+    records = evaluate(env, policy, seeds)
+    env.close()
+    acts = np.concatenate([r.act_times_s for r in records]) * 1e3
+    return {
+        "policy": name,
+        "family": family,
+        "seeds": seeds,
+        "success": [bool(r.success) for r in records],
+        "collided": [bool(r.collided) for r in records],
+        "steps": [int(r.steps) for r in records],
+        "act_median_ms": float(np.median(acts)),
+        "machine": describe(),
+    }
+
+
+def summary(lines: list[dict]) -> None:
+    from scipy.stats import binomtest
+
+    from clamgen.experiments.tables import wilson_interval
+
+    def rate(values: list[bool]) -> str:
+        k, n = int(np.sum(values)), len(values)
+        low, high = wilson_interval(k, n)
+        return f"{k / n:.3f} ({low:.3f}-{high:.3f})"
+
+    by = {(x["policy"], x["family"]): x for x in lines}
+    for family in FAMILIES:
+        for name in (*MEMBERS, MEAN, *STUDENTS):
+            line = by.get((name, family))
+            if line is None:
+                continue
+            text = (
+                f"{family:9s} {name:6s} ({len(line['seeds'])} tasks): success "
+                f"{rate(line['success'])}, collisions {rate(line['collided'])}, "
+                f"act {line['act_median_ms']:.2f} ms"
+            )
+            mean = by.get((MEAN, family))
+            if name in MEMBERS and mean is not None:
+                a, b = np.array(line["success"]), np.array(mean["success"])
+                gained, lost = int((b & ~a).sum()), int((a & ~b).sum())
+                p = binomtest(gained, gained + lost).pvalue if gained + lost else 1.0
+                text += f"; the mean solves {gained} it fails, fails {lost} it solves (P = {p:.3f})"
+            print(text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--num-blocked", type=int, default=300)
+    parser.add_argument("--num-standard", type=int, default=100)
+    parser.add_argument("--offset", type=int, default=70_000)
+    parser.add_argument(
+        "--policies", nargs="+", choices=[*MEMBERS, MEAN, *STUDENTS], default=[*MEMBERS, MEAN]
+    )
+    parser.add_argument("--summary", action="store_true", help="only print the comparison")
+    args = parser.parse_args()
+    if not args.summary:
+        from clamgen.experiments.config import VALIDATION_SEEDS
+
+        first = VALIDATION_SEEDS.start + args.offset
+        counts = {"blocked": args.num_blocked, "obstacles": args.num_standard}
+        for name in args.policies:
+            for family, count in counts.items():
+                if any((x["policy"], x["family"]) == (name, family) for x in done()):
+                    continue
+                seeds = [int(s) for s in VALIDATION_SEEDS.seeds(count, first)]
+                line = run(name, family, seeds)
+                with OUT.open("a") as f:
+                    f.write(json.dumps(line) + "\n")
+                print(f"{name} {family}: success {np.mean(line['success']):.3f}", flush=True)
+    summary(done())
+
+
+if __name__ == "__main__":
+    main()
