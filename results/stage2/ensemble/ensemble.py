@@ -89,7 +89,7 @@ def run(name: str, family: str, seeds: list[int]) -> dict:
     import torch
 
     from clamgen.envs import ReachEnv
-    from clamgen.experiments.evaluate import evaluate
+    from clamgen.experiments.evaluate import evaluate, per_task
     from clamgen.experiments.machine import describe
 
     torch.set_num_threads(1)
@@ -97,17 +97,11 @@ def run(name: str, family: str, seeds: list[int]) -> dict:
     env = ReachEnv(num_obstacles=2, task_family=family, **kwargs)
     records = evaluate(env, policy, seeds)
     env.close()
-    acts = np.concatenate([r.act_times_s for r in records]) * 1e3
-    return {
-        "policy": name,
-        "family": family,
-        "seeds": seeds,
-        "success": [bool(r.success) for r in records],
-        "collided": [bool(r.collided) for r in records],
-        "steps": [int(r.steps) for r in records],
-        "act_median_ms": float(np.median(acts)),
-        "machine": describe(),
-    }
+    return (
+        {"policy": name, "family": family, "seeds": seeds}
+        | per_task(records)
+        | {"machine": describe()}
+    )
 
 
 def summary(lines: list[dict]) -> None:

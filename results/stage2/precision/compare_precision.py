@@ -46,7 +46,7 @@ def run(views: int, family: str, seeds: list[int], hybrid: bool) -> dict:
 
     from clamgen.envs import ReachEnv
     from clamgen.experiments.depth_planner import HYBRID
-    from clamgen.experiments.evaluate import evaluate
+    from clamgen.experiments.evaluate import evaluate, per_task
     from clamgen.experiments.policies import load_policy
 
     torch.set_num_threads(1)
@@ -59,17 +59,7 @@ def run(views: int, family: str, seeds: list[int], hybrid: bool) -> dict:
     env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs, **extra)
     records = evaluate(env, policy, seeds)
     env.close()
-    acts = np.concatenate([r.act_times_s for r in records]) * 1e3
-    return {
-        "views": views,
-        "family": family,
-        "hybrid": hybrid,
-        "seeds": seeds,
-        "success": [bool(r.success) for r in records],
-        "collided": [bool(r.collided) for r in records],
-        "steps": [int(r.steps) for r in records],
-        "act_median_ms": float(np.median(acts)),
-    }
+    return {"views": views, "family": family, "hybrid": hybrid, "seeds": seeds} | per_task(records)
 
 
 def summary(lines: list[dict]) -> None:

@@ -34,7 +34,7 @@ import torch
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import HYBRID, DepthGuard
-from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.evaluate import evaluate, per_task
 from clamgen.experiments.machine import describe
 from clamgen.experiments.policies import load_policy
 
@@ -89,11 +89,8 @@ def run(setting: str, views: int, family: str, seeds: list[int]) -> dict:
         "family": family,
         "flags": list(guard.flags()),
         "seeds": seeds,
-        "success": [bool(r.success) for r in records],
-        "collided": [bool(r.collided) for r in records],
-        "steps": [int(r.steps) for r in records],
+        **per_task(records),
         "longest_act_ms": [float(max(r.act_times_s) * 1e3) for r in records],
-        "act_median_ms": float(np.median(acts)),
         "act_p99_ms": float(np.percentile(acts, 99)),
         "act_max_ms": float(acts.max()),
         "plans": int(getattr(hybrid, "num_plans", 0)),

@@ -118,6 +118,19 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, float]:
     return summary
 
 
+def per_task(records: list[EpisodeRecord]) -> dict[str, list | float]:
+    """Each episode's outcome, in order (`success`, `collided`, `steps`: lists for JSON, to
+    compare policies task by task on the same seeds), and the median act time over all their
+    steps (`act_median_ms`)."""
+    act_times = np.concatenate([r.act_times_s for r in records]) if records else np.zeros(1)
+    return {
+        "success": [bool(r.success) for r in records],
+        "collided": [bool(r.collided) for r in records],
+        "steps": [int(r.steps) for r in records],
+        "act_median_ms": float(np.median(act_times) * 1e3),
+    }
+
+
 class SACPolicy:
     """A trained SAC agent as a `Policy`: deterministic actions (tanh of the mean), or, with
     `critic_candidates` > 0 (a stage-2 agent), the best of that many candidates by its critic
