@@ -15,7 +15,8 @@ tasks from `--offset` into the validation range (70000: a block no earlier check
 JSON line per (policy, family) goes to ensemble.jsonl (per task: success, collision,
 steps; the run's median act), skipping what is there. `--summary` prints success and
 collision rates with Wilson 95% intervals, and how often the mean succeeds where a member
-fails and the other way round (with the exact two-sided sign test's P on those tasks).
+fails and the other way round (with the exact two-sided sign test's P on those tasks; the
+same for the `distilled` student against its control).
 
 Then whether one network can hold what the mean knows: `STUDENTS` are fresh students
 regressed on the pooled DAgger data of seeds 1 and 2, once with the members' mean action as
@@ -46,9 +47,11 @@ MEAN = "mean"
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
+    "one-run": str(ROOT / "runs" / "offline" / "d3-one" / "policy.pt"),
 }
-"""Single students regressed on the pooled data of seeds 1 and 2 (`distill/offline.py`):
-labelled by the members' mean (`--relabel`), and by the teacher as collected (the control)."""
+"""Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
+2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
+and on seed 1's data alone with the teacher's labels (is it the pooling, or the regression?)."""
 FAMILIES = ("blocked", "obstacles")
 
 
@@ -121,16 +124,17 @@ def summary(lines: list[dict]) -> None:
             if line is None:
                 continue
             text = (
-                f"{family:9s} {name:6s} ({len(line['seeds'])} tasks): success "
+                f"{family:9s} {name:9s} ({len(line['seeds'])} tasks): success "
                 f"{rate(line['success'])}, collisions {rate(line['collided'])}, "
                 f"act {line['act_median_ms']:.2f} ms"
             )
-            mean = by.get((MEAN, family))
-            if name in MEMBERS and mean is not None:
-                a, b = np.array(line["success"]), np.array(mean["success"])
+            other = {**dict.fromkeys(MEMBERS, MEAN), "distilled": "pooled", "pooled": "one-run"}
+            other = other.get(name)
+            if other is not None and (other, family) in by:
+                a, b = np.array(line["success"]), np.array(by[other, family]["success"])
                 gained, lost = int((b & ~a).sum()), int((a & ~b).sum())
                 p = binomtest(gained, gained + lost).pvalue if gained + lost else 1.0
-                text += f"; the mean solves {gained} it fails, fails {lost} it solves (P = {p:.3f})"
+                text += f"; {other} solves {gained} it fails, fails {lost} it solves (P = {p:.3f})"
             print(text)
 
 
