@@ -16,10 +16,12 @@ so that the shield sees a growing obstacle map and steps that need it (and a pol
 against an obstacle until the time limit), as in an evaluation (its cost includes the
 policy's).
 
-    python benchmarks/act_latency.py [--num-calls 400]
+    python benchmarks/act_latency.py [--num-calls 400] [--extra POLICY ...] [--policies-only]
+        [--no-csv]
 
 Prints each policy's median and 95th-percentile act time and its ratio to the reference's
-median; writes results/benchmarks/act_latency.csv.
+median; writes results/benchmarks/act_latency.csv unless --no-csv. `--extra` adds other
+policy files (alone), `--policies-only` leaves out the shielded rows.
 """
 
 from __future__ import annotations
@@ -125,13 +127,16 @@ def main() -> None:
         help="act calls per policy (at least: a shielded one replays every recorded step "
         "equally often)",
     )
+    parser.add_argument("--extra", nargs="*", default=[], metavar="POLICY", help="more policies")
+    parser.add_argument("--policies-only", action="store_true", help="no shielded rows")
+    parser.add_argument("--no-csv", action="store_true")
     args = parser.parse_args()
     torch.set_num_threads(1)
     loaded = {}
-    for label, name in POLICIES:
+    for label, name in (*POLICIES, *((path, path) for path in args.extra)):
         policy, _, env_kwargs = load_policy(name)
         loaded[label] = (policy, observations(env_kwargs))
-    for name, guard in SHIELDED:
+    for name, guard in () if args.policies_only else SHIELDED:
         policy, _, env_kwargs = load_policy(name)
         shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
         replay = Replay(shielded, episodes(shielded, env_kwargs | guard.env_kwargs()))
@@ -171,7 +176,8 @@ def main() -> None:
             f"x{row['ratio_to_reference']:.2f} of the reference  "
             f"({'under' if row['under_aim'] else 'over'} the {AIM_MS} ms aim)"
         )
-    print("wrote", write_csv("act_latency", rows))
+    if not args.no_csv:
+        print("wrote", write_csv("act_latency", rows))
 
 
 if __name__ == "__main__":
