@@ -48,6 +48,11 @@ STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
     "one-run": str(ROOT / "runs" / "offline" / "d3-one" / "policy.pt"),
+    # 2 views: the shipped student, the retrained seed 4, and a student regressed on the
+    # pooled data of the 2-view seed-4 run and both 3-view runs (their first two cameras).
+    "2v-seed0": "residual-2views",
+    "2v-seed4r": str(ROOT / "runs" / "reseed" / "d2-seed4" / "policy.pt"),
+    "2v-pooled": str(ROOT / "runs" / "offline" / "d2-pool" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -128,8 +133,12 @@ def summary(lines: list[dict]) -> None:
                 f"{rate(line['success'])}, collisions {rate(line['collided'])}, "
                 f"act {line['act_median_ms']:.2f} ms"
             )
-            other = {**dict.fromkeys(MEMBERS, MEAN), "distilled": "pooled", "pooled": "one-run"}
-            other = other.get(name)
+            other = {
+                **dict.fromkeys(MEMBERS, MEAN),
+                "distilled": "pooled",
+                "pooled": "one-run",
+                "2v-pooled": "2v-seed0",
+            }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
                 gained, lost = int((b & ~a).sum()), int((a & ~b).sum())
