@@ -13,10 +13,11 @@ earlier one bit for bit):
 
     clamgen distill <the run's train_command, with --run-dir runs/reseed/d<V>-seed<k>>
 
-The 3-view seeds 1 and 2 were retrained and evaluated in session 20 on an AVX2 CPU without
-bf16 in hardware, so their convs ran in float32 in training and acting (the preset's bf16
-autocast applies only where the CPU computes bf16; `results/stage2/precision/`); seed 0 and
-the 2-view seed 3 ran on a CPU with it. Each eval file records its `machine`.
+The 3-view seeds 1 and 2 (session 20) and the 2-view seed 4 (session 21) were retrained and
+evaluated on an AVX2 CPU without bf16 in hardware, so their convs ran in float32 in training
+and acting (the preset's bf16 autocast applies only where the CPU computes bf16;
+`results/stage2/precision/`); seed 0 and the 2-view seed 3 ran on a CPU with it. Each eval
+file records its `machine`.
 
 Each student is evaluated once its run has finished, on the 200 + 200 test tasks, alone and
 as the hybrid, choosing nothing (`student<V>_seed<k>r.json`, `planned<V>_fine_seed<k>r.json`
