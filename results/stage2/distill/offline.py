@@ -79,6 +79,12 @@ def main() -> None:
         help="the student's mixture components (agent.actor_components; default: the run's)",
     )
     parser.add_argument(
+        "--num-views",
+        type=int,
+        default=None,
+        help="a student that sees fewer views than the run's (its first N cameras)",
+    )
+    parser.add_argument(
         "--relabel",
         nargs="*",
         default=[],
@@ -101,9 +107,14 @@ def main() -> None:
         agent_changes["hidden_sizes"] = tuple(args.hidden_sizes)
     if args.actor_components:
         agent_changes["actor_components"] = args.actor_components
+    env = student.env
+    if args.num_views:
+        encoder = dataclasses.replace(student.agent.encoder, num_views=args.num_views)
+        agent_changes["encoder"] = encoder
+        env = dataclasses.replace(env, num_views=args.num_views)
     if agent_changes:
         agent = dataclasses.replace(student.agent, **agent_changes)
-        student = dataclasses.replace(student, agent=agent)
+        student = dataclasses.replace(student, agent=agent, env=env)
         saved["student"] = json.loads(config_to_json(student))
     changes = {}
     for item in args.set:

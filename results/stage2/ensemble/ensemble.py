@@ -53,6 +53,9 @@ STUDENTS = {
     "2v-seed0": "residual-2views",
     "2v-seed4r": str(ROOT / "runs" / "reseed" / "d2-seed4" / "policy.pt"),
     "2v-pooled": str(ROOT / "runs" / "offline" / "d2-pool" / "policy.pt"),
+    # 1 view: the shipped student, and one regressed on the same three runs' first camera.
+    "1v-seed0": "residual-1view",
+    "1v-pooled": str(ROOT / "runs" / "offline" / "d1-pool" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -138,6 +141,7 @@ def summary(lines: list[dict]) -> None:
                 "distilled": "pooled",
                 "pooled": "one-run",
                 "2v-pooled": "2v-seed0",
+                "1v-pooled": "1v-seed0",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
