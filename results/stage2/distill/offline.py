@@ -43,18 +43,12 @@ RELABEL_BATCH = 256
 
 
 def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
-    """(N, A) the mean over `agents` of their pre-squash means (deterministic, centre crops)
-    on the states of a data chunk, in batches of RELABEL_BATCH."""
+    """(N, A) the mean over `agents` of their pre-squash means (`ResidualAgent.mean_action`:
+    what a student regresses) on the states of a data chunk, in batches of RELABEL_BATCH."""
     out = np.empty_like(chunk["label"])
-    with torch.inference_mode():
-        for start in range(0, len(out), RELABEL_BATCH):
-            obs = {k: v[start : start + RELABEL_BATCH] for k, v in chunk.items() if k != "label"}
-            means = []
-            for agent in agents:
-                visual = agent.critic.encoder(agent._visual(obs, train=False))
-                low_dim = agent._actor_view(agent._state(obs))
-                means.append(agent._pre_squash(visual, low_dim)[0].numpy())
-            out[start : start + RELABEL_BATCH] = np.mean(means, axis=0)
+    for start in range(0, len(out), RELABEL_BATCH):
+        obs = {k: v[start : start + RELABEL_BATCH] for k, v in chunk.items() if k != "label"}
+        out[start : start + RELABEL_BATCH] = np.mean([a.mean_action(obs) for a in agents], axis=0)
     return out
 
 
