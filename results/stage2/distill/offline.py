@@ -52,6 +52,55 @@ def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
     return out
 
 
+def data_files(run: Path, first: int | None = None) -> list[Path]:
+    """A run's `data/iteration*.npz` in iteration order, the first `first` only if given."""
+    paths = sorted(
+        (run / "data").glob("iteration*.npz"), key=lambda p: int(p.stem[len("iteration") :])
+    )
+    return paths[:first]
+
+
+def load_pooled(
+    sources: list[tuple[Path, int | None]], views: int, relabellers: list
+) -> dict[str, np.ndarray]:
+    """The data of every (run, first K iterations) source in one array per key, images cut to
+    the first `views` cameras and labels replaced by the relabellers' mean if any.
+
+    The arrays are allocated once from the chunks' sizes and filled chunk by chunk: growing
+    them by concatenation holds two copies at its peak (29 GB for four 3-view runs' 290k
+    states, more than these machines have)."""
+    files = [path for run, first in sources for path in data_files(run, first)]
+    if not files:
+        raise SystemExit(f"no data/iteration*.npz under {', '.join(str(r) for r, _ in sources)}")
+    sizes = []
+    for path in files:
+        with np.load(path, allow_pickle=False) as data:
+            sizes.append(len(data["label"]))
+    arrays: dict[str, np.ndarray] = {}
+    start = 0
+    for run, first in sources:
+        paths = data_files(run, first)
+        for path in paths:
+            chunk = ckpt.load_npz(path)
+            if "images" in chunk:  # a vision run's data; a privileged student's has none
+                if chunk["images"].shape[1] < views:
+                    raise SystemExit(
+                        f"{path} has {chunk['images'].shape[1]} views, fewer than {views}"
+                    )
+                chunk["images"] = chunk["images"][:, :views]
+            if relabellers:
+                chunk["label"] = mean_labels(relabellers, chunk)
+            if not arrays:
+                total = sum(sizes)
+                arrays = {k: np.empty((total, *v.shape[1:]), v.dtype) for k, v in chunk.items()}
+            end = start + len(chunk["label"])
+            for key, value in chunk.items():
+                arrays[key][start:end] = value
+            start = end
+        print(f"{start} samples after {run} ({len(paths)} iterations)")
+    return arrays
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
@@ -84,6 +133,12 @@ def main() -> None:
         default=[],
         metavar="POLICY",
         help="label every state with the mean of these policies' actions instead of the teacher's",
+    )
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        default=None,
+        help="threads for the regression (default: the run's loop.torch_threads); not saved",
     )
     parser.add_argument(
         "--set",
@@ -126,22 +181,9 @@ def main() -> None:
         torch.set_num_threads(student.loop.torch_threads)
         relabellers = [load_policy(name)[0].agent for name in args.relabel]
     sources = [(args.run_dir, args.iterations), *((run, None) for run in args.pool)]
-    for run, first in sources:
-        paths = sorted(
-            (run / "data").glob("iteration*.npz"), key=lambda p: int(p.stem[len("iteration") :])
-        )
-        for path in paths[:first]:
-            chunk = ckpt.load_npz(path)
-            if "images" in chunk:  # a vision run's data; a privileged student's has none
-                if chunk["images"].shape[1] < views:
-                    raise SystemExit(
-                        f"{path} has {chunk['images'].shape[1]} views, fewer than {views}"
-                    )
-                chunk["images"] = chunk["images"][:, :views]
-            if relabellers:
-                chunk["label"] = mean_labels(relabellers, chunk)
-            distiller.data.add(chunk)
-        print(f"{len(distiller.data)} samples after {run} ({len(paths[:first])} iterations)")
+    distiller.data.arrays = load_pooled(sources, views, relabellers)
+    if args.torch_threads:
+        torch.set_num_threads(args.torch_threads)
     print(f"{args.updates} updates ...")
     loss = distiller._regress(args.updates, "offline", show_progress=True)
     scores = distiller._validate()
@@ -176,6 +218,7 @@ def main() -> None:
         "samples": len(distiller.data),
         "changes": changes,
         "updates": args.updates,
+        "torch_threads": args.torch_threads or student.loop.torch_threads,
         "hidden_sizes": list(student.agent.hidden_sizes),
         "actor_components": student.agent.actor_components,
         "loss": loss,
