@@ -2,8 +2,8 @@
 shipped `residual-3views` recipe: seed 0 is the shipped policy
 (results/table2/shielded_residual-3views.json, planned_residual-3views.json), seeds 1 and 2
 the lookahead-fixed sweep's runs (fixed3_seed*_shielded.json, fixed3_seed*_planned.json here).
-Mean success per task family with rliable's 95% stratified-bootstrap interval, and each seed's
-collision rate:
+Mean success and mean collision rate per task family with rliable's 95% stratified-bootstrap
+intervals, and each seed's values:
 
     python results/stage2/shield/three_seeds.py
 """
@@ -39,15 +39,16 @@ def main() -> None:
         seeds = [_scores(TABLE2 / shipped)] + [_scores(HERE / other.format(s)) for s in (1, 2)]
         print(f"{variant} (3 seeds: 0 shipped, 1, 2)")
         for family in FAMILIES:
-            values = np.array([[seed[family][0]] for seed in seeds])
-            stats = aggregate_rows({family: values})[family]
-            per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
-            collision = ", ".join(f"{seed[family][1]:.3f}" for seed in seeds)
-            print(
-                f"  {family:9s} success mean {stats.mean.value:.3f} "
-                f"({stats.mean.low:.3f}-{stats.mean.high:.3f}); per seed {per_seed}; "
-                f"collision per seed {collision}"
-            )
+            parts = []
+            for index, what in enumerate(("success", "collision")):
+                values = np.array([[seed[family][index]] for seed in seeds])
+                stats = aggregate_rows({family: values})[family].mean
+                per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
+                parts.append(
+                    f"{what} mean {stats.value:.3f} ({stats.low:.3f}-{stats.high:.3f}), "
+                    f"per seed {per_seed}"
+                )
+            print(f"  {family:9s} " + "; ".join(parts))
 
 
 if __name__ == "__main__":

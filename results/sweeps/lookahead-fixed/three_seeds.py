@@ -1,8 +1,8 @@
 """The shipped `residual-3views` recipe over three training seeds: seed 0 is the shipped run
 (results/table2/distilled_fixed_3views.json; its iteration chosen on 300 validation tasks),
 seeds 1 and 2 the sweep's runs (summary.json here; best of the 100 per-iteration validation
-tasks). Mean success per task family with rliable's 95% stratified-bootstrap interval, and the
-collision rates of each seed's evaluation:
+tasks). Mean success and mean collision rate per task family with rliable's 95%
+stratified-bootstrap intervals, and each seed's values:
 
     python results/sweeps/lookahead-fixed/three_seeds.py
 """
@@ -45,15 +45,16 @@ def main() -> None:
         seeds[run["seed"]] = (scores, _collision_from_table(HERE / f"seed{run['seed']}-table2.md"))
     print(f"{len(seeds)} seeds: {sorted(seeds)}")
     for family in FAMILIES:
-        values = np.array([[seeds[s][0][family]] for s in sorted(seeds)])
-        stats = aggregate_rows({family: values})[family]
-        per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
-        col = ", ".join(f"{seeds[s][1][family]:.3f}" for s in sorted(seeds))
-        print(
-            f"{family:9s} success mean {stats.mean.value:.3f} "
-            f"({stats.mean.low:.3f}-{stats.mean.high:.3f}); per seed {per_seed}; "
-            f"collision per seed {col}"
-        )
+        parts = []
+        for index, what in enumerate(("success", "collision")):
+            values = np.array([[seeds[s][index][family]] for s in sorted(seeds)])
+            stats = aggregate_rows({family: values})[family].mean
+            per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
+            parts.append(
+                f"{what} mean {stats.value:.3f} ({stats.low:.3f}-{stats.high:.3f}), "
+                f"per seed {per_seed}"
+            )
+        print(f"{family:9s} " + "; ".join(parts))
 
 
 if __name__ == "__main__":
