@@ -161,6 +161,7 @@ def main() -> None:
                 times[label].append(time.perf_counter() - tic)
     reference = float(np.median(times[REFERENCE[0]])) * 1e3
     rows = []
+    width = max(map(len, times))
     for label, values in times.items():
         ms = np.asarray(values) * 1e3
         row = {
@@ -172,7 +173,7 @@ def main() -> None:
         }
         rows.append(row)
         print(
-            f"{label:34s} median {row['median_ms']:.3f} ms  p95 {row['p95_ms']:.3f} ms  "
+            f"{label:{width}s} median {row['median_ms']:.3f} ms  p95 {row['p95_ms']:.3f} ms  "
             f"x{row['ratio_to_reference']:.2f} of the reference  "
             f"({'under' if row['under_aim'] else 'over'} the {AIM_MS} ms aim)"
         )
