@@ -56,6 +56,11 @@ STUDENTS = {
     # 1 view: the shipped student, and one regressed on the same three runs' first camera.
     "1v-seed0": "residual-1view",
     "1v-pooled": str(ROOT / "runs" / "offline" / "d1-pool" / "policy.pt"),
+    # Session 22: the same regression on two more 3-view runs' data (seeds 3 and 4), compared
+    # task by task with the students on fewer runs (README, "Four runs' data").
+    "3v-pool4": str(ROOT / "runs" / "offline" / "d3-pool4" / "policy.pt"),
+    "2v-pool5": str(ROOT / "runs" / "offline" / "d2-pool5" / "policy.pt"),
+    "1v-pool5": str(ROOT / "runs" / "offline" / "d1-pool5" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -142,6 +147,9 @@ def summary(lines: list[dict]) -> None:
                 "pooled": "one-run",
                 "2v-pooled": "2v-seed0",
                 "1v-pooled": "1v-seed0",
+                "3v-pool4": "pooled",
+                "2v-pool5": "2v-pooled",
+                "1v-pool5": "1v-pooled",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
