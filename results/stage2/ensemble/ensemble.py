@@ -61,6 +61,8 @@ STUDENTS = {
     "3v-pool4": str(ROOT / "runs" / "offline" / "d3-pool4" / "policy.pt"),
     "2v-pool5": str(ROOT / "runs" / "offline" / "d2-pool5" / "policy.pt"),
     "1v-pool5": str(ROOT / "runs" / "offline" / "d1-pool5" / "policy.pt"),
+    # ... and the four-run 3-view student regressed twice as long (48000 steps).
+    "3v-pool4-48k": str(ROOT / "runs" / "offline" / "d3-pool4-48k" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -82,10 +84,10 @@ class MeanActionPolicy:
         return np.mean([member.act(obs) for member in self.members], axis=0)
 
 
-def done() -> list[dict]:
-    if not OUT.exists():
+def done(out: Path = OUT) -> list[dict]:
+    if not out.exists():
         return []
-    return [json.loads(line) for line in OUT.read_text().splitlines() if line]
+    return [json.loads(line) for line in out.read_text().splitlines() if line]
 
 
 def load(name: str):
@@ -137,7 +139,7 @@ def summary(lines: list[dict]) -> None:
             if line is None:
                 continue
             text = (
-                f"{family:9s} {name:9s} ({len(line['seeds'])} tasks): success "
+                f"{family:9s} {name:12s} ({len(line['seeds'])} tasks): success "
                 f"{rate(line['success'])}, collisions {rate(line['collided'])}, "
                 f"act {line['act_median_ms']:.2f} ms"
             )
@@ -150,6 +152,7 @@ def summary(lines: list[dict]) -> None:
                 "3v-pool4": "pooled",
                 "2v-pool5": "2v-pooled",
                 "1v-pool5": "1v-pooled",
+                "3v-pool4-48k": "3v-pool4",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
@@ -167,6 +170,9 @@ def main() -> None:
     parser.add_argument(
         "--policies", nargs="+", choices=[*MEMBERS, MEAN, *STUDENTS], default=[*MEMBERS, MEAN]
     )
+    parser.add_argument(
+        "--out", type=Path, default=OUT, help="the JSON-lines file (one per block of tasks)"
+    )
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
     if not args.summary:
@@ -176,14 +182,17 @@ def main() -> None:
         counts = {"blocked": args.num_blocked, "obstacles": args.num_standard}
         for name in args.policies:
             for family, count in counts.items():
-                if any((x["policy"], x["family"]) == (name, family) for x in done()):
-                    continue
                 seeds = [int(s) for s in VALIDATION_SEEDS.seeds(count, first)]
+                there = [x for x in done(args.out) if (x["policy"], x["family"]) == (name, family)]
+                if there and there[0]["seeds"] != seeds:
+                    raise SystemExit(f"{args.out} holds other tasks for {name}: give another --out")
+                if there:
+                    continue
                 line = run(name, family, seeds)
-                with OUT.open("a") as f:
+                with args.out.open("a") as f:
                     f.write(json.dumps(line) + "\n")
                 print(f"{name} {family}: success {np.mean(line['success']):.3f}", flush=True)
-    summary(done())
+    summary(done(args.out))
 
 
 if __name__ == "__main__":
