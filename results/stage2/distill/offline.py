@@ -69,17 +69,16 @@ def load_pooled(
     The arrays are allocated once from the chunks' sizes and filled chunk by chunk: growing
     them by concatenation holds two copies at its peak (29 GB for four 3-view runs' 290k
     states, more than these machines have)."""
-    files = [path for run, first in sources for path in data_files(run, first)]
-    if not files:
+    per_run = [(run, data_files(run, first)) for run, first in sources]
+    if not any(paths for _, paths in per_run):
         raise SystemExit(f"no data/iteration*.npz under {', '.join(str(r) for r, _ in sources)}")
-    sizes = []
-    for path in files:
+    total = 0
+    for path in (path for _, paths in per_run for path in paths):
         with np.load(path, allow_pickle=False) as data:
-            sizes.append(len(data["label"]))
+            total += len(data["label"])
     arrays: dict[str, np.ndarray] = {}
     start = 0
-    for run, first in sources:
-        paths = data_files(run, first)
+    for run, paths in per_run:
         for path in paths:
             chunk = ckpt.load_npz(path)
             if "images" in chunk:  # a vision run's data; a privileged student's has none
@@ -91,7 +90,6 @@ def load_pooled(
             if relabellers:
                 chunk["label"] = mean_labels(relabellers, chunk)
             if not arrays:
-                total = sum(sizes)
                 arrays = {k: np.empty((total, *v.shape[1:]), v.dtype) for k, v in chunk.items()}
             end = start + len(chunk["label"])
             for key, value in chunk.items():
