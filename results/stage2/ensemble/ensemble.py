@@ -63,6 +63,9 @@ STUDENTS = {
     "1v-pool5": str(ROOT / "runs" / "offline" / "d1-pool5" / "policy.pt"),
     # ... and the four-run 3-view student regressed twice as long (48000 steps).
     "3v-pool4-48k": str(ROOT / "runs" / "offline" / "d3-pool4-48k" / "policy.pt"),
+    # Session 23: the five-run 2- and 1-view students regressed twice as long too.
+    "2v-pool5-48k": str(ROOT / "runs" / "offline" / "d2-pool5-48k" / "policy.pt"),
+    "1v-pool5-48k": str(ROOT / "runs" / "offline" / "d1-pool5-48k" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -153,6 +156,8 @@ def summary(lines: list[dict]) -> None:
                 "2v-pool5": "2v-pooled",
                 "1v-pool5": "1v-pooled",
                 "3v-pool4-48k": "3v-pool4",
+                "2v-pool5-48k": "2v-pool5",
+                "1v-pool5-48k": "1v-pool5",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
