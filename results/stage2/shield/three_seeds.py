@@ -13,9 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
-from clamgen.experiments.aggregate import aggregate_rows
+from clamgen.experiments.aggregate import seed_lines
 
 HERE = Path(__file__).resolve().parent
 TABLE2 = HERE.parents[1] / "table2"
@@ -38,17 +36,7 @@ def main() -> None:
     for variant, (shipped, other) in VARIANTS.items():
         seeds = [_scores(TABLE2 / shipped)] + [_scores(HERE / other.format(s)) for s in (1, 2)]
         print(f"{variant} (3 seeds: 0 shipped, 1, 2)")
-        for family in FAMILIES:
-            parts = []
-            for index, what in enumerate(("success", "collision")):
-                values = np.array([[seed[family][index]] for seed in seeds])
-                stats = aggregate_rows({family: values})[family].mean
-                per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
-                parts.append(
-                    f"{what} mean {stats.value:.3f} ({stats.low:.3f}-{stats.high:.3f}), "
-                    f"per seed {per_seed}"
-                )
-            print(f"  {family:9s} " + "; ".join(parts))
+        print("\n".join(seed_lines(seeds, FAMILIES)))
 
 
 if __name__ == "__main__":

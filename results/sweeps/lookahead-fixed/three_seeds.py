@@ -13,9 +13,7 @@ import json
 import re
 from pathlib import Path
 
-import numpy as np
-
-from clamgen.experiments.aggregate import aggregate_rows
+from clamgen.experiments.aggregate import seed_lines
 
 HERE = Path(__file__).resolve().parent
 SHIPPED = HERE.parents[1] / "table2" / "distilled_fixed_3views.json"
@@ -44,17 +42,8 @@ def main() -> None:
         scores = run["test"]["scores"]
         seeds[run["seed"]] = (scores, _collision_from_table(HERE / f"seed{run['seed']}-table2.md"))
     print(f"{len(seeds)} seeds: {sorted(seeds)}")
-    for family in FAMILIES:
-        parts = []
-        for index, what in enumerate(("success", "collision")):
-            values = np.array([[seeds[s][index][family]] for s in sorted(seeds)])
-            stats = aggregate_rows({family: values})[family].mean
-            per_seed = ", ".join(f"{v:.3f}" for v in values[:, 0])
-            parts.append(
-                f"{what} mean {stats.value:.3f} ({stats.low:.3f}-{stats.high:.3f}), "
-                f"per seed {per_seed}"
-            )
-        print(f"{family:9s} " + "; ".join(parts))
+    runs = [{f: (seeds[s][0][f], seeds[s][1][f]) for f in FAMILIES} for s in sorted(seeds)]
+    print("\n".join(line.removeprefix("  ") for line in seed_lines(runs, FAMILIES)))
 
 
 if __name__ == "__main__":

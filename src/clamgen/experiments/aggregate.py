@@ -129,25 +129,31 @@ def aggregate_rows(
     return out
 
 
+def seed_mean(name: str, values: Sequence[float]) -> str:
+    """'<name> mean M (low-high), per seed a, b, ...' for one measure of a row evaluated on
+    several training seeds: the mean over seeds with its 95% stratified-bootstrap interval
+    (`aggregate_rows`; from two seeds, none for one) and each seed's value."""
+    column = np.asarray(values, dtype=float)[:, None]
+    interval = ""
+    if len(column) > 1:
+        mean = aggregate_rows({name: column})[name].mean
+        interval = f" ({mean.low:.3f}-{mean.high:.3f})"
+    per_seed = ", ".join(f"{v:.3f}" for v in column[:, 0])
+    return f"{name} mean {column.mean():.3f}{interval}, per seed {per_seed}"
+
+
 def seed_lines(runs: Sequence[Mapping[str, tuple[float, float]]], families: Sequence[str]):
     """One line per task family for a row evaluated on several training seeds, from each
-    seed's {family: (success rate, collision rate)}: the mean success over seeds with its
-    95% stratified-bootstrap interval (`aggregate_rows`; from two seeds), each seed's
-    success and collision rate, and the mean collision rate."""
-    lines = []
-    for family in families:
-        success = np.array([[run[family][0]] for run in runs])
-        collision = [run[family][1] for run in runs]
-        interval = ""
-        if len(runs) > 1:
-            mean = aggregate_rows({family: success})[family].mean
-            interval = f" ({mean.low:.3f}-{mean.high:.3f})"
-        lines.append(
-            f"  {family:9s} success mean {success.mean():.3f}{interval}; per seed "
-            f"{', '.join(f'{v:.3f}' for v in success[:, 0])}; collision per seed "
-            f"{', '.join(f'{v:.3f}' for v in collision)} (mean {np.mean(collision):.3f})"
+    seed's {family: (success rate, collision rate)}: `seed_mean` of the success and of the
+    collision rate."""
+    return [
+        f"  {family:9s} "
+        + "; ".join(
+            seed_mean(what, [run[family][index] for run in runs])
+            for index, what in enumerate(("success", "collision"))
         )
-    return lines
+        for family in families
+    ]
 
 
 def probability_of_improvement(
