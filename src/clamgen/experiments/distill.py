@@ -207,6 +207,10 @@ class _Dataset:
         obs = {k: self.arrays[k][index] for k in self.keys}
         return obs, self.arrays["label"][index]
 
+    def poses(self, index: np.ndarray) -> np.ndarray:
+        """The true obstacle poses of the states `index` (the pose loss's targets)."""
+        return self.arrays["obstacles"][index]
+
 
 class Distiller:
     """DAgger from a privileged teacher into a student; see the module docstring."""
@@ -450,11 +454,11 @@ class Distiller:
             if decay:
                 for group in self.optimizer.param_groups:
                     group["lr"] = 0.5 * lr * (1 + np.cos(np.pi * step / steps))
-            index = self.rng.integers(0, len(self.data), batch_size)
+            index = self._batch_index(batch_size)
             obs, labels = self.data.batch(index)
             loss, visual = self.student.imitation_loss(obs, torch.as_tensor(labels))
             if self._pose_loss_on():
-                poses = torch.as_tensor(self.data.arrays["obstacles"][index])
+                poses = torch.as_tensor(self.data.poses(index))
                 loss = loss + self.config.distill.pose_weight * pose_loss(
                     self.pose_head(visual).view(poses.shape),
                     scale_lengths(poses, self.config.distill.pose_length_scale_m),
@@ -466,6 +470,10 @@ class Distiller:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
         return loss_value
+
+    def _batch_index(self, batch_size: int) -> np.ndarray:
+        """The states of one regression batch: uniform over all data."""
+        return self.rng.integers(0, len(self.data), batch_size)
 
     def _pose_loss_on(self) -> bool:
         return self.vision and self.config.distill.pose_weight > 0
