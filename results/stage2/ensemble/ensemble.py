@@ -68,6 +68,7 @@ STUDENTS = {
     "1v-pool5-48k": str(ROOT / "runs" / "offline" / "d1-pool5-48k" / "policy.pt"),
     # ... and DAgger continued from the 48000-step 3-view student (`continue_dagger.py`).
     "3v-dagger+2": str(ROOT / "runs" / "offline" / "d3-pool4-48k-dagger" / "policy.pt"),
+    "2v-dagger+2": str(ROOT / "runs" / "offline" / "d2-pool5-48k-dagger" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -161,6 +162,7 @@ def summary(lines: list[dict]) -> None:
                 "2v-pool5-48k": "2v-pool5",
                 "1v-pool5-48k": "1v-pool5",
                 "3v-dagger+2": "3v-pool4-48k",
+                "2v-dagger+2": "2v-pool5-48k",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
