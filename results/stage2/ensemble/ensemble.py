@@ -67,8 +67,11 @@ STUDENTS = {
     "2v-pool5-48k": str(ROOT / "runs" / "offline" / "d2-pool5-48k" / "policy.pt"),
     "1v-pool5-48k": str(ROOT / "runs" / "offline" / "d1-pool5-48k" / "policy.pt"),
     # ... and DAgger continued from the 48000-step 3-view student (`continue_dagger.py`).
-    "3v-dagger+2": str(ROOT / "runs" / "offline" / "d3-pool4-48k-dagger" / "policy.pt"),
-    "2v-dagger+2": str(ROOT / "runs" / "offline" / "d2-pool5-48k-dagger" / "policy.pt"),
+    # (each a continuation's iteration file: policy.pt moves on when a continuation resumes)
+    "3v-dagger+2": str(ROOT / "runs" / "offline" / "d3-pool4-48k-dagger" / "policy_iteration1.pt"),
+    "2v-dagger+2": str(ROOT / "runs" / "offline" / "d2-pool5-48k-dagger" / "policy_iteration1.pt"),
+    "3v-dagger+4": str(ROOT / "runs" / "offline" / "d3-pool4-48k-dagger" / "policy_iteration3.pt"),
+    "1v-dagger+2": str(ROOT / "runs" / "offline" / "d1-pool5-48k-dagger" / "policy_iteration1.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -163,6 +166,8 @@ def summary(lines: list[dict]) -> None:
                 "1v-pool5-48k": "1v-pool5",
                 "3v-dagger+2": "3v-pool4-48k",
                 "2v-dagger+2": "2v-pool5-48k",
+                "3v-dagger+4": "3v-dagger+2",
+                "1v-dagger+2": "1v-pool5-48k",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
