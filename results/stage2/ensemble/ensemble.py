@@ -72,6 +72,7 @@ STUDENTS = {
     "2v-dagger+2": str(ROOT / "runs" / "offline" / "d2-pool5-48k-dagger" / "policy_iteration1.pt"),
     "3v-dagger+4": str(ROOT / "runs" / "offline" / "d3-pool4-48k-dagger" / "policy_iteration3.pt"),
     "1v-dagger+2": str(ROOT / "runs" / "offline" / "d1-pool5-48k-dagger" / "policy_iteration1.pt"),
+    "2v-dagger+4": str(ROOT / "runs" / "offline" / "d2-pool5-48k-dagger" / "policy_iteration3.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -168,6 +169,7 @@ def summary(lines: list[dict]) -> None:
                 "2v-dagger+2": "2v-pool5-48k",
                 "3v-dagger+4": "3v-dagger+2",
                 "1v-dagger+2": "1v-pool5-48k",
+                "2v-dagger+4": "2v-dagger+2",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
