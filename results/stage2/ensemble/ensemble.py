@@ -73,6 +73,9 @@ STUDENTS = {
     "3v-dagger+4": str(ROOT / "runs" / "offline" / "d3-pool4-48k-dagger" / "policy_iteration3.pt"),
     "1v-dagger+2": str(ROOT / "runs" / "offline" / "d1-pool5-48k-dagger" / "policy_iteration1.pt"),
     "2v-dagger+4": str(ROOT / "runs" / "offline" / "d2-pool5-48k-dagger" / "policy_iteration3.pt"),
+    "3v-dagger+2-s6": str(
+        ROOT / "runs" / "offline" / "d3-pool4-48k-dagger-s6" / "policy_iteration1.pt"
+    ),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -170,6 +173,7 @@ def summary(lines: list[dict]) -> None:
                 "3v-dagger+4": "3v-dagger+2",
                 "1v-dagger+2": "1v-pool5-48k",
                 "2v-dagger+4": "2v-dagger+2",
+                "3v-dagger+2-s6": "3v-pool4-48k",
             }.get(name)
             if other is not None and (other, family) in by:
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
