@@ -133,12 +133,7 @@ def main() -> None:
     distiller.student.load_state_dict(state["student"])
     distiller.pose_head.load_state_dict(state["pose_head"])
     if resume.exists():
-        distiller.optimizer.load_state_dict(state["optimizer"])
-        distiller.rng.bit_generator.state = state["rng"]
-        distiller.next_seed = state["next_seed"]
-        if distiller.lookahead is not None:
-            distiller.lookahead.rng.bit_generator.state = state["lookahead_rng"]
-        distiller.history = list(state["history"])
+        distiller.load_resume_state(state)
         start = len(distiller.history)
         for path in data_files(args.out, start):
             distiller.data.add(ckpt.load_npz(path))
@@ -174,16 +169,7 @@ def main() -> None:
         }
         ckpt.save_torch(args.out / f"policy_iteration{iteration}.pt", payload)
         ckpt.save_torch(args.out / POLICY_NAME, payload)
-        state = {
-            "student": distiller.student.state_dict(),
-            "pose_head": distiller.pose_head.state_dict(),
-            "optimizer": distiller.optimizer.state_dict(),
-            "rng": distiller.rng.bit_generator.state,
-            "next_seed": distiller.next_seed,
-            "lookahead_rng": distiller.lookahead and distiller.lookahead.rng.bit_generator.state,
-            "history": distiller.history,
-        }
-        ckpt.save_torch(resume, {"format": ckpt.FORMAT, "kind": "distill", **state})
+        ckpt.save_torch(resume, distiller.resume_state())
     summary = {
         "source": str(args.source),
         "iterations": args.iterations,

@@ -504,7 +504,14 @@ class Distiller:
         best = max(r["validation/success_rate"] for r in self._scored())
         if success >= best:
             ckpt.save_torch(self.run_dir / POLICY_NAME, payload)
-        state = {
+        ckpt.save_torch(self.run_dir / STATE_NAME, self.resume_state())
+
+    def resume_state(self) -> dict[str, Any]:
+        """What a rerun resumes from (`load_resume_state`): weights, optimizer, random
+        streams, the next episode seed and the history."""
+        return {
+            "format": ckpt.FORMAT,
+            "kind": "distill",
             "iteration": self.history[-1]["iteration"],
             "final": self.final,
             "student": self.student.state_dict(),
@@ -515,9 +522,18 @@ class Distiller:
             "history": self.history,
             "lookahead_rng": self.lookahead.rng.bit_generator.state if self.lookahead else None,
         }
-        ckpt.save_torch(
-            self.run_dir / STATE_NAME, {"format": ckpt.FORMAT, "kind": "distill", **state}
-        )
+
+    def load_resume_state(self, state: dict[str, Any]) -> None:
+        """Restore what `resume_state` saved (the data is added by the caller)."""
+        self.student.load_state_dict(state["student"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.pose_head.load_state_dict(state["pose_head"])
+        self.rng.bit_generator.state = state["rng"]
+        self.next_seed = state["next_seed"]
+        self.history = list(state["history"])
+        self.final = state.get("final")
+        if self.lookahead is not None and state.get("lookahead_rng") is not None:
+            self.lookahead.rng.bit_generator.state = state["lookahead_rng"]
 
     def _resume(self) -> int:
         """The iteration to start from: 0, or the one after the last saved."""
@@ -532,20 +548,12 @@ class Distiller:
                 "use another --run-dir or the same options"
             )
         state = ckpt.load_torch(path, kind="distill")
-        self.student.load_state_dict(state["student"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.pose_head.load_state_dict(state["pose_head"])
-        self.rng.bit_generator.state = state["rng"]
-        self.next_seed = state["next_seed"]
-        self.history = list(state["history"])
-        self.final = state.get("final")
+        self.load_resume_state(state)
         if self.final is not None and self.config.distill.iterations > state["iteration"] + 1:
             raise ValueError(
                 f"{self.run_dir} holds a polished student (distill.final_updates): it takes no "
                 "more iterations; use another --run-dir"
             )
-        if self.lookahead is not None and state.get("lookahead_rng") is not None:
-            self.lookahead.rng.bit_generator.state = state["lookahead_rng"]
         for iteration in range(state["iteration"] + 1):
             self.data.add(ckpt.load_npz(self.run_dir / "data" / f"iteration{iteration}.npz"))
         print(f"resumed after iteration {state['iteration']} ({len(self.data)} samples)")
