@@ -38,8 +38,10 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 OUT = HERE / "ensemble.jsonl"
+SHIPPED_BEFORE = HERE / "shipped_until_session24"
 MEMBERS = {
-    "seed0": "residual-3views",
+    # The shipped students until session 24 (pinned copies: the package's files moved on).
+    "seed0": str(SHIPPED_BEFORE / "residual-3views.pt"),
     "seed1r": str(ROOT / "runs" / "reseed" / "d3-seed1" / "policy.pt"),
     "seed2r": str(ROOT / "runs" / "reseed" / "d3-seed2" / "policy.pt"),
 }
@@ -50,11 +52,11 @@ STUDENTS = {
     "one-run": str(ROOT / "runs" / "offline" / "d3-one" / "policy.pt"),
     # 2 views: the shipped student, the retrained seed 4, and a student regressed on the
     # pooled data of the 2-view seed-4 run and both 3-view runs (their first two cameras).
-    "2v-seed0": "residual-2views",
+    "2v-seed0": str(SHIPPED_BEFORE / "residual-2views.pt"),
     "2v-seed4r": str(ROOT / "runs" / "reseed" / "d2-seed4" / "policy.pt"),
     "2v-pooled": str(ROOT / "runs" / "offline" / "d2-pool" / "policy.pt"),
     # 1 view: the shipped student, and one regressed on the same three runs' first camera.
-    "1v-seed0": "residual-1view",
+    "1v-seed0": str(SHIPPED_BEFORE / "residual-1view.pt"),
     "1v-pooled": str(ROOT / "runs" / "offline" / "d1-pool" / "policy.pt"),
     # Session 22: the same regression on two more 3-view runs' data (seeds 3 and 4), compared
     # task by task with the students on fewer runs (README, "Four runs' data").
@@ -81,6 +83,26 @@ STUDENTS = {
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
 and on seed 1's data alone with the teacher's labels (is it the pooling, or the regression?)."""
 FAMILIES = ("blocked", "obstacles")
+COMPARED = {
+    **{member: (MEAN,) for member in MEMBERS},
+    "distilled": ("pooled",),
+    "pooled": ("one-run",),
+    "2v-pooled": ("2v-seed0",),
+    "1v-pooled": ("1v-seed0",),
+    "3v-pool4": ("pooled",),
+    "2v-pool5": ("2v-pooled",),
+    "1v-pool5": ("1v-pooled",),
+    "3v-pool4-48k": ("3v-pool4",),
+    "2v-pool5-48k": ("2v-pool5",),
+    "1v-pool5-48k": ("1v-pool5",),
+    "3v-dagger+2": ("3v-pool4-48k", "seed0"),
+    "2v-dagger+2": ("2v-pool5-48k", "2v-seed0"),
+    "3v-dagger+4": ("3v-dagger+2",),
+    "1v-dagger+2": ("1v-pool5-48k", "1v-seed0"),
+    "2v-dagger+4": ("2v-dagger+2",),
+    "3v-dagger+2-s6": ("3v-pool4-48k",),
+}
+"""Who each policy is compared with task by task in the summary, where both ran on the block."""
 
 
 class MeanActionPolicy:
@@ -156,26 +178,9 @@ def summary(lines: list[dict]) -> None:
                 f"{rate(line['success'])}, collisions {rate(line['collided'])}, "
                 f"act {line['act_median_ms']:.2f} ms"
             )
-            other = {
-                **dict.fromkeys(MEMBERS, MEAN),
-                "distilled": "pooled",
-                "pooled": "one-run",
-                "2v-pooled": "2v-seed0",
-                "1v-pooled": "1v-seed0",
-                "3v-pool4": "pooled",
-                "2v-pool5": "2v-pooled",
-                "1v-pool5": "1v-pooled",
-                "3v-pool4-48k": "3v-pool4",
-                "2v-pool5-48k": "2v-pool5",
-                "1v-pool5-48k": "1v-pool5",
-                "3v-dagger+2": "3v-pool4-48k",
-                "2v-dagger+2": "2v-pool5-48k",
-                "3v-dagger+4": "3v-dagger+2",
-                "1v-dagger+2": "1v-pool5-48k",
-                "2v-dagger+4": "2v-dagger+2",
-                "3v-dagger+2-s6": "3v-pool4-48k",
-            }.get(name)
-            if other is not None and (other, family) in by:
+            for other in COMPARED.get(name, ()):
+                if (other, family) not in by:
+                    continue
                 a, b = np.array(line["success"]), np.array(by[other, family]["success"])
                 gained, lost = int((b & ~a).sum()), int((a & ~b).sum())
                 p = binomtest(gained, gained + lost).pvalue if gained + lost else 1.0
