@@ -53,8 +53,8 @@ TARGET_FILTER_M = 0.02
 arm's filter on purpose: it also hides obstacle surface right beside the target, so that the
 gripper can make its last approach to a target that sits close to an obstacle (blocked tasks
 often put one there) instead of being held off by the margin (chosen on 300 blocked
-validation tasks, `residual-3views` with the planner: 0.963 success with 2 cm, 0.920 with
-6 mm, where 65 of 191 plans found no path)."""
+validation tasks, the `residual-3views` of that time with the planner: 0.963 success with
+2 cm, 0.920 with 6 mm, where 65 of 191 plans found no path)."""
 TARGET_REACH_M = C.TARGET_RADIUS_M + TARGET_FILTER_M
 PEDESTAL_RADIUS_M = 0.09
 PEDESTAL_TOP_M = 0.01
