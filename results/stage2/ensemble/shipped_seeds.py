@@ -1,0 +1,121 @@
+"""More training seeds of the shipped 2- and 1-view recipes, alone and in their hybrids.
+
+The shipped `residual-2views` / `residual-1view` (since session 24) are one seed of their
+recipe: a fresh student regressed 48000 steps on the pooled DAgger data of five lookahead-teacher
+runs (`offline.py`, distill seed 4), then DAgger continued two iterations with the student
+driving (`continue_dagger.py`, distill seed 5). Seeds S = 7, 8 (and 9, 10 for one view) repeat
+both steps with distill seed S on the same pooled data (`seed_lane.sh VIEWS S ...`; README,
+"More seeds of the shipped 2- and 1-view recipes"), into
+`runs/offline/d<V>-pool5-48k-s<S>-dagger/`.
+
+Each seed's student after two iterations (`policy_iteration1.pt`) is evaluated once its
+continuation has finished, on the 200 + 200 test tasks, alone and as the hybrid
+(`clamgen eval --depth-hybrid`), choosing nothing (`seeds/student<V>_seed<S>.json`,
+`seeds/hybrid<V>_seed<S>.json`; skipped when they exist); its continuation's record is copied
+beside them (`seeds/d<V>_seed<S>.continue.json`, `.offline.json`). Seed 5 is the shipped
+student (`<V>v-dagger+2_test.json`, `../../table2/hybrid_residual-*.json`). Prints, per
+number of views and task family, the mean success and collision rate over seeds with rliable's
+95% stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt.
+
+    python results/stage2/ensemble/shipped_seeds.py [--views 2 1]
+    python results/stage2/ensemble/shipped_seeds.py --summarize-only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import shutil
+import subprocess
+from pathlib import Path
+
+from clamgen.experiments.aggregate import seed_lines
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[2]
+OUT = HERE / "seeds"
+TABLE2 = ROOT / "results" / "table2"
+SEEDS = {2: (7, 8), 1: (7, 8, 9, 10)}
+SHIPPED_SEED = 5
+"""The continuation seed of the shipped students (their regression ran with distill seed 4)."""
+FAMILIES = ("obstacles", "blocked")
+WORDS = {2: "2 RGBD views", 1: "1 RGBD view"}
+SHIPPED = {2: "residual-2views", 1: "residual-1view"}
+SHIPPED_ROWS = {
+    (2, False): HERE / "2v-dagger+2_test.json",
+    (1, False): HERE / "1v-dagger+2_test.json",
+    (2, True): TABLE2 / "hybrid_residual-2views.json",
+    (1, True): TABLE2 / "hybrid_residual-1view.json",
+}
+"""The shipped students' own test rows (seed 5), alone and in their hybrids."""
+
+
+def run_dir(views: int, seed: int) -> Path:
+    return ROOT / "runs" / "offline" / f"d{views}-pool5-48k-s{seed}-dagger"
+
+
+def _name(views: int, hybrid: bool) -> str:
+    student = f"CLAMGen, {WORDS[views]}, student of the shipped `{SHIPPED[views]}` recipe (ours)"
+    return student + (" + the hybrid's depth shield and planner" if hybrid else ", alone")
+
+
+def _out(views: int, seed: int, hybrid: bool) -> Path:
+    return OUT / (f"hybrid{views}_seed{seed}" if hybrid else f"student{views}_seed{seed}")
+
+
+def _scores(path: Path) -> dict[str, tuple[float, float]]:
+    rows = json.loads(path.read_text())["rows"]
+    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
+
+
+def _evaluate(views: int, seed: int) -> None:
+    source = run_dir(views, seed)
+    OUT.mkdir(exist_ok=True)
+    shutil.copyfile(source / "continue.json", OUT / f"d{views}_seed{seed}.continue.json")
+    offline = source.parent / source.name.removesuffix("-dagger") / "offline.json"
+    shutil.copyfile(offline, OUT / f"d{views}_seed{seed}.offline.json")
+    for hybrid in (False, True):
+        out = _out(views, seed, hybrid)
+        if out.with_suffix(".json").is_file():
+            continue
+        command = ["clamgen", "eval", "--table", "2"]
+        command += ["--policy", str((source / "policy_iteration1.pt").relative_to(ROOT))]
+        command += ["--depth-hybrid"] if hybrid else []
+        command += ["--num-tasks", "200", "--name", _name(views, hybrid)]
+        command += ["--out", str(out.relative_to(ROOT))]
+        print("$", shlex.join(command), flush=True)
+        subprocess.run(command, check=True, cwd=ROOT)
+
+
+def summarize(views: int) -> str:
+    lines = []
+    for hybrid in (False, True):
+        found = [(SHIPPED_SEED, _scores(SHIPPED_ROWS[views, hybrid]))]
+        for seed in SEEDS[views]:
+            path = _out(views, seed, hybrid).with_suffix(".json")
+            if path.is_file():
+                found.append((seed, _scores(path)))
+        lines.append(f"{_name(views, hybrid)}; {len(found)} seeds {[s for s, _ in found]}")
+        lines += seed_lines([scores for _, scores in found], FAMILIES)
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--views", type=int, nargs="+", choices=sorted(SEEDS), default=[2, 1])
+    parser.add_argument("--summarize-only", action="store_true", help="evaluate nothing")
+    args = parser.parse_args()
+    if not args.summarize_only:
+        for views in args.views:
+            for seed in SEEDS[views]:
+                record = run_dir(views, seed) / "continue.json"
+                if record.is_file():  # (written when the continuation has finished)
+                    _evaluate(views, seed)
+    text = "\n".join(summarize(views) for views in sorted(SEEDS, reverse=True))
+    print(text)
+    (HERE / "shipped_seeds.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
