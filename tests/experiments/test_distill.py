@@ -103,14 +103,14 @@ def test_regression_moves_the_student_towards_the_labels(
     teacher,
 ):
     distiller = Distiller(distill_config(tmp_path, base_policy, teacher, pose_weight=1.0))
-    chunk, _ = distiller._collect(1.0, 0, show_progress=False)
+    chunk, _ = distiller.collect_iteration(1.0, 0, show_progress=False)
     distiller.data.add(chunk)
     index = np.arange(min(len(distiller.data), 16))
     obs, labels = distiller.data.batch(index)
     torch.manual_seed(0)
     with torch.no_grad():
         before = float(distiller.student.imitation_loss(obs, torch.as_tensor(labels))[0])
-    distiller._regress(60, 0, show_progress=False)
+    distiller.regress(60, 0, show_progress=False)
     with torch.no_grad():
         losses = [distiller.student.imitation_loss(obs, torch.as_tensor(labels))[0] for _ in "ab"]
     after = np.mean([float(loss) for loss in losses])
@@ -212,7 +212,7 @@ def test_collection_episodes_can_end_at_their_first_collision(tmp_path, base_pol
                 return obs, reward, terminated, truncated, {**info, "collision": steps[0] == 2}
 
             env.reset, env.step = reset, step
-        chunk, stats = distiller._collect(0.0, 1, show_progress=False)
+        chunk, stats = distiller.collect_iteration(0.0, 1, show_progress=False)
         lengths[stop] = len(chunk["label"])
         assert stats["rollout_success"] == 0.0
     assert lengths[True] == 4 * 2  # each episode: its first step and the colliding one

@@ -88,7 +88,7 @@ class Continuation(Distiller):
 
     new_share = 0.0
 
-    def _batch_index(self, batch_size: int) -> np.ndarray:
+    def batch_index(self, batch_size: int) -> np.ndarray:
         data = self.data
         fresh = round(self.new_share * batch_size) if data.new_size else 0
         old = self.rng.integers(0, data.pool_size, batch_size - fresh)
@@ -144,11 +144,11 @@ def main() -> None:
         json.dumps({"student": saved["student"], "distill": dataclasses.asdict(settings)}, indent=2)
     )
     for iteration in range(start, args.iterations):
-        chunk, stats = distiller._collect(0.0, iteration, show_progress=True)
+        chunk, stats = distiller.collect_iteration(0.0, iteration, show_progress=True)
         ckpt.save_npz(args.out / "data" / f"iteration{iteration}.npz", chunk)
         distiller.data.add(chunk)
-        loss = distiller._regress(args.updates, iteration, show_progress=True, decay=True)
-        scores = distiller._validate()
+        loss = distiller.regress(args.updates, iteration, show_progress=True, decay=True)
+        scores = distiller.validate()
         row = {
             "iteration": iteration,
             "new_states": distiller.data.new_size,
@@ -159,7 +159,7 @@ def main() -> None:
         }
         distiller.history.append(row)
         print(json.dumps(row), flush=True)
-        payload = distiller._payload(iteration)
+        payload = distiller.policy_payload(iteration)
         payload["continued"] = {
             "source": str(args.source),
             "iteration": iteration,

@@ -183,10 +183,10 @@ def main() -> None:
     if args.torch_threads:
         torch.set_num_threads(args.torch_threads)
     print(f"{args.updates} updates ...")
-    loss = distiller._regress(args.updates, "offline", show_progress=True)
-    scores = distiller._validate()
+    loss = distiller.regress(args.updates, "offline", show_progress=True)
+    scores = distiller.validate()
     args.out.mkdir(parents=True, exist_ok=True)
-    payload = distiller._payload("offline")
+    payload = distiller.policy_payload("offline")
     payload["offline"] = {
         "source": str(args.run_dir),
         "iterations": args.iterations,

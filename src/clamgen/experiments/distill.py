@@ -213,7 +213,14 @@ class _Dataset:
 
 
 class Distiller:
-    """DAgger from a privileged teacher into a student; see the module docstring."""
+    """DAgger from a privileged teacher into a student; see the module docstring.
+
+    `run()` is the whole loop. Its steps are public for loops of one's own (continuing DAgger
+    from a student regressed elsewhere: `results/stage2/distill/continue_dagger.py`):
+    `collect_iteration` (episodes, every state labelled), `regress` (steps on `data`, whose
+    batches `batch_index` draws: override it to weight them), `validate` and `policy_payload`
+    (a policy file's contents); `resume_state` / `load_resume_state` save and restore the rest.
+    """
 
     def __init__(self, config: DistillConfig) -> None:
         self.config = config
@@ -304,11 +311,11 @@ class Distiller:
         for iteration in range(start, settings.iterations):
             tic = time.perf_counter()
             share = 1.0 if iteration == 0 else settings.teacher_share**iteration
-            chunk, stats = self._collect(share, iteration, show_progress)
+            chunk, stats = self.collect_iteration(share, iteration, show_progress)
             ckpt.save_npz(self.run_dir / "data" / f"iteration{iteration}.npz", chunk)
             self.data.add(chunk)
-            loss = self._regress(settings.updates_per_iteration, iteration, show_progress)
-            scores = self._validate()
+            loss = self.regress(settings.updates_per_iteration, iteration, show_progress)
+            scores = self.validate()
             row = {
                 "iteration": iteration,
                 "teacher_share": share,
@@ -339,8 +346,8 @@ class Distiller:
         and save the polished student."""
         tic = time.perf_counter()
         steps = self.config.distill.final_updates
-        loss = self._regress(steps, "final", show_progress, decay=True)
-        scores = self._validate()
+        loss = self.regress(steps, "final", show_progress, decay=True)
+        scores = self.validate()
         self.final = {
             "iteration": "final",
             "samples": len(self.data),
@@ -356,7 +363,7 @@ class Distiller:
         """Every validated student: the iterations', then the polished one's."""
         return [*self.history, *([self.final] if self.final else [])]
 
-    def _collect(self, share: float, iteration: int, show_progress: bool):
+    def collect_iteration(self, share: float, iteration: int, show_progress: bool):
         """`episodes_per_iteration` episodes, the teacher driving each with probability
         `share`; every state labelled by the teacher (with lookahead, when configured).
         (chunk of arrays, stats): the stats are the success rates (reached, never collided) of
@@ -440,7 +447,7 @@ class Distiller:
             self.planners[i].reset(self.envs[i])
         return obs
 
-    def _regress(
+    def regress(
         self, steps: int, iteration: int | str, show_progress: bool, decay: bool = False
     ) -> float | None:
         """`steps` Adam steps of the imitation loss on random batches of all data; with
@@ -454,7 +461,7 @@ class Distiller:
             if decay:
                 for group in self.optimizer.param_groups:
                     group["lr"] = 0.5 * lr * (1 + np.cos(np.pi * step / steps))
-            index = self._batch_index(batch_size)
+            index = self.batch_index(batch_size)
             obs, labels = self.data.batch(index)
             loss, visual = self.student.imitation_loss(obs, torch.as_tensor(labels))
             if self._pose_loss_on():
@@ -471,19 +478,19 @@ class Distiller:
             group["lr"] = lr
         return loss_value
 
-    def _batch_index(self, batch_size: int) -> np.ndarray:
+    def batch_index(self, batch_size: int) -> np.ndarray:
         """The states of one regression batch: uniform over all data."""
         return self.rng.integers(0, len(self.data), batch_size)
 
     def _pose_loss_on(self) -> bool:
         return self.vision and self.config.distill.pose_weight > 0
 
-    def _validate(self) -> dict[str, float]:
+    def validate(self) -> dict[str, float]:
         seeds = VALIDATION_SEEDS.seeds(self.config.distill.num_eval_episodes)
         return summarize(evaluate(self.eval_env, SACPolicy(self.student), seeds))
 
     # --------------------------------------------------------------- files
-    def _payload(self, iteration: int | str) -> dict[str, Any]:
+    def policy_payload(self, iteration: int | str) -> dict[str, Any]:
         state = self.student.state_dict()
         return {
             "format": ckpt.FORMAT,
@@ -498,7 +505,7 @@ class Distiller:
     def _save(self, iteration: int | str, success: float) -> None:
         """The student after `iteration` (an index, or "final" once polished): its policy file,
         `policy.pt` if it is the best so far, and the state a rerun resumes from."""
-        payload = self._payload(iteration)
+        payload = self.policy_payload(iteration)
         name = "policy_final.pt" if iteration == "final" else f"policy_iteration{iteration}.pt"
         ckpt.save_torch(self.run_dir / name, payload)
         best = max(r["validation/success_rate"] for r in self._scored())
