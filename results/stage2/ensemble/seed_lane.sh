@@ -1,11 +1,19 @@
 #!/bin/bash
-# One lane of student seeds (results/stage2/ensemble/README.md, "More seeds"; usage: seed_lane.sh VIEWS SEED...): regression (48000 steps, distill seed S) then two DAgger continuation iterations (distill seed S).
+# One lane of seeds of the shipped 2- or 1-view student recipe (results/stage2/ensemble/README.md,
+# "More seeds"): for each distill seed S, a fresh student regressed 48000 steps on the pooled
+# data of five DAgger runs, then DAgger continued two iterations, both with seed S.
+#   results/stage2/ensemble/seed_lane.sh VIEWS SEED...    (VIEWS: 2 or 1)
 set -e
-cd /work/main
+cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
 V=$1; shift
+case "$V" in
+  2) EXTRA="" ;;
+  1) EXTRA="--num-views 1" ;;
+  *) echo "seed_lane.sh: VIEWS must be 2 or 1, got '$V'" >&2; exit 2 ;;
+esac
+SRC=runs/reseed/d2-seed4
 for S in "$@"; do
-  if [ "$V" = 2 ]; then SRC=runs/reseed/d2-seed4; EXTRA=""; else SRC=runs/reseed/d2-seed4; EXTRA="--num-views 1"; fi
   OUT=runs/offline/d${V}-pool5-48k-s${S}
   if [ ! -f $OUT/policy.pt ]; then
     .venv/bin/python results/stage2/distill/offline.py $SRC $OUT --updates 48000 --torch-threads 1 $EXTRA \
