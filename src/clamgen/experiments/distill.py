@@ -486,11 +486,13 @@ class Distiller:
         return self.vision and self.config.distill.pose_weight > 0
 
     def validate(self) -> dict[str, float]:
+        """The deterministic student's rates on the first `num_eval_episodes` validation tasks."""
         seeds = VALIDATION_SEEDS.seeds(self.config.distill.num_eval_episodes)
         return summarize(evaluate(self.eval_env, SACPolicy(self.student), seeds))
 
     # --------------------------------------------------------------- files
     def policy_payload(self, iteration: int | str) -> dict[str, Any]:
+        """The contents of the student's policy file after `iteration`."""
         state = self.student.state_dict()
         return {
             "format": ckpt.FORMAT,
