@@ -1,5 +1,7 @@
 """Aggregation over training seeds (rliable) on small score arrays worked out by hand."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -150,3 +152,13 @@ def test_seed_lines_give_each_seed_and_the_mean_with_an_interval_from_two_seeds(
         "  blocked   success mean 0.850 (0.800-0.900), per seed 0.800, 0.900; "
         "collision mean 0.030 (0.020-0.040), per seed 0.020, 0.040"
     )
+
+
+def test_row_scores_read_success_and_collision_per_family_from_an_eval_row(tmp_path):
+    path = tmp_path / "row.json"
+    rows = [
+        {"family": "obstacles", "success_rate": 0.95, "collision_rate": 0.025, "num_tasks": 200},
+        {"family": "blocked", "success_rate": 0.85, "collision_rate": 0.06, "num_tasks": 200},
+    ]
+    path.write_text(json.dumps({"policy": "p", "rows": rows}))
+    assert A.row_scores(path) == {"obstacles": (0.95, 0.025), "blocked": (0.85, 0.06)}

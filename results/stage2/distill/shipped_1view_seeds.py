@@ -19,14 +19,13 @@ seed's success and collision rate, and writes them to shipped_1view/seeds.txt.
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
 
-from clamgen.experiments.aggregate import seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines
 from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
@@ -92,19 +91,14 @@ def _evaluate(seed: int, student: Path) -> None:
         _run([*command, *flags, "--num-tasks", "200", "--name", name, "--out", str(out)])
 
 
-def _scores(path: Path) -> dict[str, tuple[float, float]]:
-    rows = json.loads(path.read_text())["rows"]
-    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
-
-
 def summarize(seeds: list[int]) -> str:
     lines = []
     for key, (name, _, shipped) in ROWS.items():
-        found = [(0, _scores(TABLE2 / shipped))]
+        found = [(0, row_scores(TABLE2 / shipped))]
         for seed in seeds:
             path = OUT / f"seed{seed}_{key}.json"
             if path.is_file():
-                found.append((seed, _scores(path)))
+                found.append((seed, row_scores(path)))
         lines.append(f"{key}: {name}; {len(found)} seeds {[s for s, _ in found]}")
         lines += seed_lines([scores for _, scores in found], FAMILIES)
     return "\n".join(lines)

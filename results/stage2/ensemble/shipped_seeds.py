@@ -24,13 +24,12 @@ number of views and task family, the mean success and collision rate over seeds 
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import shutil
 import subprocess
 from pathlib import Path
 
-from clamgen.experiments.aggregate import seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -65,11 +64,6 @@ def _out(views: int, seed: int, hybrid: bool) -> Path:
     return OUT / (f"hybrid{views}_seed{seed}" if hybrid else f"student{views}_seed{seed}")
 
 
-def _scores(path: Path) -> dict[str, tuple[float, float]]:
-    rows = json.loads(path.read_text())["rows"]
-    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
-
-
 def _evaluate(views: int, seed: int) -> None:
     source = run_dir(views, seed)
     OUT.mkdir(exist_ok=True)
@@ -92,11 +86,11 @@ def _evaluate(views: int, seed: int) -> None:
 def summarize(views: int) -> str:
     lines = []
     for hybrid in (False, True):
-        found = [(SHIPPED_SEED, _scores(SHIPPED_ROWS[views, hybrid]))]
+        found = [(SHIPPED_SEED, row_scores(SHIPPED_ROWS[views, hybrid]))]
         for seed in SEEDS[views]:
             path = _out(views, seed, hybrid).with_suffix(".json")
             if path.is_file():
-                found.append((seed, _scores(path)))
+                found.append((seed, row_scores(path)))
         lines.append(f"{_name(views, hybrid)}; {len(found)} seeds {[s for s, _ in found]}")
         lines += seed_lines([scores for _, scores in found], FAMILIES)
     return "\n".join(lines)

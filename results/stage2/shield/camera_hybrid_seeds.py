@@ -33,12 +33,11 @@ camera_hybrid_seeds.txt.
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import subprocess
 from pathlib import Path
 
-from clamgen.experiments.aggregate import seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -60,11 +59,6 @@ def _hybrid_name(views: int) -> str:
 
 def _student_name(views: int) -> str:
     return f"CLAMGen, {WORDS[views]}, student of the shipped `{SHIPPED[views]}` recipe (ours)"
-
-
-def _scores(path: Path) -> dict[str, tuple[float, float]]:
-    rows = json.loads(path.read_text())["rows"]
-    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
 
 
 def _out(views: int, seed: int, hybrid: bool) -> Path:
@@ -90,11 +84,11 @@ def summarize(views: int) -> str:
     for hybrid in (True, False):
         found = []
         shipped = f"planned_fine_{SHIPPED[views]}.json" if hybrid else SHIPPED_ALONE[views]
-        found.append((0, _scores(TABLE2 / shipped)))
+        found.append((0, row_scores(TABLE2 / shipped)))
         for seed in SEEDS[views]:
             path = _out(views, seed, hybrid).with_suffix(".json")
             if path.is_file():
-                found.append((f"{seed}r", _scores(path)))
+                found.append((f"{seed}r", row_scores(path)))
         name = _hybrid_name(views) if hybrid else _student_name(views) + ", alone"
         lines.append(f"{name}; {len(found)} seeds {[seed for seed, _ in found]}")
         lines += seed_lines([scores for _, scores in found], FAMILIES)

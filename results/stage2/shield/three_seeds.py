@@ -10,10 +10,9 @@ intervals, and each seed's values:
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from clamgen.experiments.aggregate import seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines
 
 HERE = Path(__file__).resolve().parent
 TABLE2 = HERE.parents[1] / "table2"
@@ -27,14 +26,11 @@ VARIANTS = {
 }
 
 
-def _scores(path: Path) -> dict[str, tuple[float, float]]:
-    rows = json.loads(path.read_text())["rows"]
-    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
-
-
 def main() -> None:
     for variant, (shipped, other) in VARIANTS.items():
-        seeds = [_scores(TABLE2 / shipped)] + [_scores(HERE / other.format(s)) for s in (1, 2)]
+        seeds = [row_scores(TABLE2 / shipped)] + [
+            row_scores(HERE / other.format(s)) for s in (1, 2)
+        ]
         print(f"{variant} (3 seeds: 0 shipped, 1, 2)")
         print("\n".join(seed_lines(seeds, FAMILIES)))
 

@@ -16,12 +16,11 @@ collision rate, and writes them to two_view_seeds.txt.
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import subprocess
 from pathlib import Path
 
-from clamgen.experiments.aggregate import seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -34,11 +33,6 @@ NAME = (
     "CLAMGen, 2 RGBD views, shipped `residual-2views` + depth shield + planner on the depth map "
     "when stuck (ours)"
 )
-
-
-def _scores(path: Path) -> dict[str, tuple[float, float]]:
-    rows = json.loads(path.read_text())["rows"]
-    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
 
 
 HYBRID_THEN = ("--depth-shield-m", "0.01", "--depth-planner")
@@ -59,9 +53,9 @@ def _evaluate(seed: int) -> None:
 
 
 def summarize() -> str:
-    found = [(0, _scores(TABLE2 / "planned_residual-2views.json"))]
+    found = [(0, row_scores(TABLE2 / "planned_residual-2views.json"))]
     found += [
-        (seed, _scores(HERE / f"planned2_seed{seed}.json"))
+        (seed, row_scores(HERE / f"planned2_seed{seed}.json"))
         for seed in SEEDS
         if (HERE / f"planned2_seed{seed}.json").is_file()
     ]

@@ -16,8 +16,10 @@ call seeds it for its own duration and restores the caller's state afterwards.
 from __future__ import annotations
 
 import contextlib
+import json
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import scipy.stats
@@ -140,6 +142,13 @@ def seed_mean(name: str, values: Sequence[float]) -> str:
         interval = f" ({mean.low:.3f}-{mean.high:.3f})"
     per_seed = ", ".join(f"{v:.3f}" for v in column[:, 0])
     return f"{name} mean {column.mean():.3f}{interval}, per seed {per_seed}"
+
+
+def row_scores(path: str | Path) -> dict[str, tuple[float, float]]:
+    """{family: (success rate, collision rate)} of one `clamgen eval --table 2` row's JSON: the
+    per-seed input of `seed_lines`."""
+    rows = json.loads(Path(path).read_text())["rows"]
+    return {r["family"]: (r["success_rate"], r["collision_rate"]) for r in rows}
 
 
 def seed_lines(runs: Sequence[Mapping[str, tuple[float, float]]], families: Sequence[str]):
