@@ -129,15 +129,16 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     start = 0
     resume = args.out / CONTINUE_STATE
-    state = ckpt.load_torch(resume if resume.exists() else args.source / STATE_NAME, "distill")
-    distiller.student.load_state_dict(state["student"])
-    distiller.pose_head.load_state_dict(state["pose_head"])
     if resume.exists():
-        distiller.load_resume_state(state)
+        distiller.load_resume_state(ckpt.load_torch(resume, "distill"))
         start = len(distiller.history)
         for path in data_files(args.out, start):
             distiller.data.add(ckpt.load_npz(path))
         print(f"resumed after iteration {start - 1} ({distiller.data.new_size} new states)")
+    else:  # the source student's weights; a fresh optimizer and random streams
+        state = ckpt.load_torch(args.source / STATE_NAME, "distill")
+        distiller.student.load_state_dict(state["student"])
+        distiller.pose_head.load_state_dict(state["pose_head"])
     if args.torch_threads:
         torch.set_num_threads(args.torch_threads)
     (args.out / "config.json").write_text(
