@@ -18,8 +18,9 @@ in each iteration's regression. After each iteration it scores the student on th
 distillation's 100 validation tasks and writes `policy_iteration<k>.pt` (and `policy.pt`: the
 last iteration's, chosen by no score), its data and the state it resumes from.
 
-The pool is held once (one preallocated array per key, as `offline.py` loads it); the new
-states are kept apart so that adding them never copies it (four 3-view runs are 14 GB).
+The pool is held once (one preallocated array per key, as `offline.py` loads it, or
+memory-mapped with `--pool-cache DIR` so that jobs on the same pool share it); the new states
+are kept apart so that adding them never copies it (four 3-view runs are 14 GB).
 """
 
 from __future__ import annotations
@@ -31,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from offline import data_files, load_pooled
 
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import config_from_json
 from clamgen.experiments.distill import STATE_NAME, DistillConfig, Distiller, DistillSettings
+from clamgen.experiments.pooled import data_files, load_pooled
 from clamgen.experiments.stage2 import Stage2Config
 from clamgen.experiments.train import POLICY_NAME
 
@@ -106,6 +107,9 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=None, help="per iteration (default: run's)")
     parser.add_argument("--seed", type=int, required=True, help="a distill seed no run used")
     parser.add_argument("--torch-threads", type=int, default=None, help="not saved")
+    parser.add_argument(
+        "--pool-cache", type=Path, default=None, metavar="DIR", help="as offline.py's"
+    )
     args = parser.parse_args()
     if not 0.0 <= args.new_share < 1.0:
         raise SystemExit(f"--new-share must be in [0, 1), got {args.new_share}")
@@ -124,7 +128,10 @@ def main() -> None:
     distiller = Continuation(DistillConfig(student=student, distill=settings))
     distiller.new_share = args.new_share
     sources = [(run, record["iterations"]), *((Path(p), None) for p in record["pool"])]
-    pool = load_pooled(sources, student.env.num_views, [])
+    try:
+        pool = load_pooled(sources, student.env.num_views, cache=args.pool_cache)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(str(error)) from None
     distiller.data = PoolAndNew(pool, distiller.keys)
     args.out.mkdir(parents=True, exist_ok=True)
     start = 0

@@ -15,7 +15,10 @@ DAgger data, not DAgger: use it to compare losses and data, not as a final stude
 `--pool RUN ...` adds the data of other runs of the same teacher, their views cut to the
 student's (a 3-view run's data holds the first two cameras a 2-view student sees);
 `--relabel POLICY ...` replaces the teacher's labels by the mean of those policies' pre-squash
-means on each state (distilling an ensemble of students into one, `results/stage2/ensemble/`).
+means on each state (distilling an ensemble of students into one, `results/stage2/ensemble/`);
+`--pool-cache DIR` memory-maps the pooled data from uncompressed copies in DIR (written by the
+first job), so that two jobs on the same pool share one copy in memory
+(`clamgen.experiments.pooled`; the same values, the same regression).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from clamgen.experiments.distill import (
     Distiller,
     DistillSettings,
 )
+from clamgen.experiments.pooled import load_pooled
 from clamgen.experiments.stage2 import Stage2Config
 from clamgen.experiments.train import POLICY_NAME
 
@@ -50,53 +54,6 @@ def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
         obs = {k: v[start : start + RELABEL_BATCH] for k, v in chunk.items() if k != "label"}
         out[start : start + RELABEL_BATCH] = np.mean([a.mean_action(obs) for a in agents], axis=0)
     return out
-
-
-def data_files(run: Path, first: int | None = None) -> list[Path]:
-    """A run's `data/iteration*.npz` in iteration order, the first `first` only if given."""
-    paths = sorted(
-        (run / "data").glob("iteration*.npz"), key=lambda p: int(p.stem[len("iteration") :])
-    )
-    return paths[:first]
-
-
-def load_pooled(
-    sources: list[tuple[Path, int | None]], views: int, relabellers: list
-) -> dict[str, np.ndarray]:
-    """The data of every (run, first K iterations) source in one array per key, images cut to
-    the first `views` cameras and labels replaced by the relabellers' mean if any.
-
-    The arrays are allocated once from the chunks' sizes and filled chunk by chunk: growing
-    them by concatenation holds two copies at its peak (29 GB for four 3-view runs' 290k
-    states, more than these machines have)."""
-    per_run = [(run, data_files(run, first)) for run, first in sources]
-    if not any(paths for _, paths in per_run):
-        raise SystemExit(f"no data/iteration*.npz under {', '.join(str(r) for r, _ in sources)}")
-    total = 0
-    for path in (path for _, paths in per_run for path in paths):
-        with np.load(path, allow_pickle=False) as data:
-            total += len(data["label"])
-    arrays: dict[str, np.ndarray] = {}
-    start = 0
-    for run, paths in per_run:
-        for path in paths:
-            chunk = ckpt.load_npz(path)
-            if "images" in chunk:  # a vision run's data; a privileged student's has none
-                if chunk["images"].shape[1] < views:
-                    raise SystemExit(
-                        f"{path} has {chunk['images'].shape[1]} views, fewer than {views}"
-                    )
-                chunk["images"] = chunk["images"][:, :views]
-            if relabellers:
-                chunk["label"] = mean_labels(relabellers, chunk)
-            if not arrays:
-                arrays = {k: np.empty((total, *v.shape[1:]), v.dtype) for k, v in chunk.items()}
-            end = start + len(chunk["label"])
-            for key, value in chunk.items():
-                arrays[key][start:end] = value
-            start = end
-        print(f"{start} samples after {run} ({len(paths)} iterations)")
-    return arrays
 
 
 def main() -> None:
@@ -139,6 +96,14 @@ def main() -> None:
         help="threads for the regression (default: the run's loop.torch_threads); not saved",
     )
     parser.add_argument(
+        "--pool-cache",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="memory-map the pooled data from DIR (written there first): jobs on the same "
+        "pool share one copy in memory",
+    )
+    parser.add_argument(
         "--set",
         nargs="*",
         default=[],
@@ -179,7 +144,13 @@ def main() -> None:
         torch.set_num_threads(student.loop.torch_threads)
         relabellers = [load_policy(name)[0].agent for name in args.relabel]
     sources = [(args.run_dir, args.iterations), *((run, None) for run in args.pool)]
-    distiller.data.arrays = load_pooled(sources, views, relabellers)
+    relabel = (lambda chunk: mean_labels(relabellers, chunk)) if relabellers else None
+    if relabel and args.pool_cache:
+        raise SystemExit("--pool-cache holds the teachers' labels: not with --relabel")
+    try:
+        distiller.data.arrays = load_pooled(sources, views, relabel, args.pool_cache)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(str(error)) from None
     if args.torch_threads:
         torch.set_num_threads(args.torch_threads)
     print(f"{args.updates} updates ...")

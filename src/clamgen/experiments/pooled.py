@@ -1,0 +1,131 @@
+"""Pooled distillation data: the states of several DAgger runs in one array per key.
+
+A distillation run writes its (student input, teacher label) pairs as
+`RUN/data/iteration*.npz`. Students regressed offline on several runs' data
+(`results/stage2/distill/offline.py`, `continue_dagger.py`) hold all of it at once: four
+3-view runs are 290k states, 14.4 GB of images, so two such jobs do not fit beside each other
+on a 24 GB machine. With a cache directory the pool is written once as uncompressed `.npy`
+files and memory-mapped read-only: every process that maps the same cache shares one copy in
+the page cache, and the arrays hold the same values as the in-memory pool.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from clamgen.experiments import checkpoint as ckpt
+
+MANIFEST_NAME = "manifest.json"
+LOCK_NAME = "lock"
+
+Relabel = Callable[[dict[str, np.ndarray]], np.ndarray]
+
+
+def data_files(run: Path, first: int | None = None) -> list[Path]:
+    """A run's `data/iteration*.npz` in iteration order, the first `first` only if given."""
+    paths = sorted(
+        (Path(run) / "data").glob("iteration*.npz"),
+        key=lambda p: int(p.stem[len("iteration") :]),
+    )
+    return paths[:first]
+
+
+def _files(sources: list[tuple[Path, int | None]]) -> list[tuple[Path, list[Path]]]:
+    per_run = [(Path(run), data_files(run, first)) for run, first in sources]
+    if not any(paths for _, paths in per_run):
+        names = ", ".join(str(run) for run, _ in sources)
+        raise FileNotFoundError(f"no data/iteration*.npz under {names}")
+    return per_run
+
+
+def _fill(
+    per_run: list[tuple[Path, list[Path]]],
+    views: int,
+    relabel: Relabel | None,
+    allocate: Callable[[str, tuple[int, ...], np.dtype], np.ndarray],
+) -> dict[str, np.ndarray]:
+    """Every chunk copied into arrays allocated once from the chunks' total size: growing them
+    by concatenation holds two copies at its peak (29 GB for four 3-view runs)."""
+    total = 0
+    for path in (path for _, paths in per_run for path in paths):
+        with np.load(path, allow_pickle=False) as data:
+            total += len(data["label"])
+    arrays: dict[str, np.ndarray] = {}
+    start = 0
+    for run, paths in per_run:
+        for path in paths:
+            chunk = ckpt.load_npz(path)
+            if "images" in chunk:  # a vision run's data; a privileged student's has none
+                if chunk["images"].shape[1] < views:
+                    have = chunk["images"].shape[1]
+                    raise ValueError(f"{path} has {have} views, fewer than {views}")
+                chunk["images"] = chunk["images"][:, :views]
+            if relabel is not None:
+                chunk["label"] = relabel(chunk)
+            if not arrays:
+                arrays = {k: allocate(k, (total, *v.shape[1:]), v.dtype) for k, v in chunk.items()}
+            end = start + len(chunk["label"])
+            for key, value in chunk.items():
+                arrays[key][start:end] = value
+            start = end
+        print(f"{start} samples after {run} ({len(paths)} iterations)")
+    return arrays
+
+
+def load_pooled(
+    sources: list[tuple[Path, int | None]],
+    views: int,
+    relabel: Relabel | None = None,
+    cache: Path | None = None,
+) -> dict[str, np.ndarray]:
+    """The data of every (run, first K iterations or None for all) source in one array per
+    key, images cut to the first `views` cameras, labels replaced by `relabel(chunk)` if given.
+
+    With `cache`, the arrays are memory-mapped read-only from `cache/<key>.npy`, written there
+    first unless the cache already holds exactly these files (paths, sizes, modification times)
+    at this view count. Processes that start together wait on a lock while one writes it."""
+    per_run = _files(sources)
+    if cache is None:
+        return _fill(per_run, views, relabel, lambda _, shape, dtype: np.empty(shape, dtype))
+    if relabel is not None:
+        raise ValueError("a pool cache holds the teachers' labels: relabelled pools are not cached")
+    return _mapped(per_run, views, Path(cache))
+
+
+def _inputs(per_run: list[tuple[Path, list[Path]]], views: int) -> dict:
+    files = []
+    for path in (path for _, paths in per_run for path in paths):
+        stat = path.stat()
+        files.append([str(path.resolve()), stat.st_size, stat.st_mtime_ns])
+    return {"views": views, "files": files}
+
+
+def _mapped(per_run: list[tuple[Path, list[Path]]], views: int, cache: Path) -> dict:
+    cache.mkdir(parents=True, exist_ok=True)
+    inputs = _inputs(per_run, views)
+    manifest_path = cache / MANIFEST_NAME
+    with (cache / LOCK_NAME).open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+        if manifest.get("inputs") != inputs:
+            manifest_path.unlink(missing_ok=True)  # a half-written cache is never trusted
+
+            def allocate(key: str, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+                return np.lib.format.open_memmap(cache / f"{key}.npy", "w+", dtype, shape)
+
+            arrays = _fill(per_run, views, None, allocate)
+            for array in arrays.values():
+                array.flush()
+            manifest = {"inputs": inputs, "keys": sorted(arrays)}
+            del arrays
+            tmp = manifest_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(manifest, indent=1))
+            os.replace(tmp, manifest_path)
+            print(f"pool cached in {cache}")
+        return {key: np.load(cache / f"{key}.npy", mmap_mode="r") for key in manifest["keys"]}

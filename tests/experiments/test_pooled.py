@@ -1,0 +1,103 @@
+"""Pooled distillation data, in memory and memory-mapped from a cache."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.pooled import MANIFEST_NAME, data_files, load_pooled
+
+
+def _write_run(run, sizes, views=3, seed=0):
+    rng = np.random.default_rng(seed)
+    for i, n in enumerate(sizes):
+        chunk = {
+            "images": rng.integers(0, 256, (n, views, 4, 6, 6), dtype=np.uint8),
+            "proprio": rng.normal(size=(n, 9)).astype(np.float32),
+            "label": rng.normal(size=(n, 6)).astype(np.float32),
+        }
+        ckpt.save_npz(run / "data" / f"iteration{i}.npz", chunk)
+
+
+@pytest.fixture
+def runs(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    _write_run(a, [5, 7, 4], seed=1)
+    _write_run(b, [6, 3], seed=2)
+    return a, b
+
+
+def test_data_files_in_iteration_order(tmp_path):
+    _write_run(tmp_path, [1] * 11)
+    names = [p.name for p in data_files(tmp_path)]
+    assert names[:3] == ["iteration0.npz", "iteration1.npz", "iteration2.npz"]
+    assert names[-1] == "iteration10.npz"
+    assert len(data_files(tmp_path, 2)) == 2
+
+
+def test_pool_concatenates_sources_and_cuts_views(runs):
+    a, b = runs
+    pool = load_pooled([(a, 2), (b, None)], views=2)
+    assert len(pool["label"]) == 5 + 7 + 6 + 3
+    assert pool["images"].shape[1:] == (2, 4, 6, 6)
+    first = ckpt.load_npz(a / "data" / "iteration0.npz")
+    np.testing.assert_array_equal(pool["images"][:5], first["images"][:, :2])
+    last = ckpt.load_npz(b / "data" / "iteration1.npz")
+    np.testing.assert_array_equal(pool["label"][-3:], last["label"])
+
+
+def test_cached_pool_equals_the_pool_in_memory_and_is_reused(runs, tmp_path):
+    a, b = runs
+    sources = [(a, None), (b, None)]
+    cache = tmp_path / "cache"
+    in_memory = load_pooled(sources, views=3)
+    mapped = load_pooled(sources, views=3, cache=cache)
+    assert sorted(mapped) == sorted(in_memory)
+    for key, array in in_memory.items():
+        assert isinstance(mapped[key], np.memmap)
+        np.testing.assert_array_equal(mapped[key], array)
+    with pytest.raises(ValueError):
+        mapped["label"][0] = 0.0  # read-only: a job never changes the shared pool
+    stamp = (cache / "images.npy").stat().st_mtime_ns
+    again = load_pooled(sources, views=3, cache=cache)
+    assert (cache / "images.npy").stat().st_mtime_ns == stamp  # not written again
+    np.testing.assert_array_equal(again["images"], in_memory["images"])
+
+
+def test_cache_is_rebuilt_when_its_inputs_change(runs, tmp_path):
+    a, b = runs
+    cache = tmp_path / "cache"
+    load_pooled([(a, None), (b, None)], views=3, cache=cache)
+    two_views = load_pooled([(a, None), (b, None)], views=2, cache=cache)
+    assert two_views["images"].shape[1] == 2
+    fewer = load_pooled([(a, 1)], views=2, cache=cache)
+    assert len(fewer["label"]) == 5
+    _write_run(a, [2], seed=9)  # iteration0 rewritten: other states
+    os.utime(a / "data" / "iteration0.npz", ns=(1, 1))
+    rewritten = load_pooled([(a, 1)], views=2, cache=cache)
+    np.testing.assert_array_equal(
+        rewritten["label"], ckpt.load_npz(a / "data" / "iteration0.npz")["label"]
+    )
+
+
+def test_half_written_cache_is_not_trusted(runs, tmp_path):
+    a, _ = runs
+    cache = tmp_path / "cache"
+    load_pooled([(a, None)], views=3, cache=cache)
+    (cache / MANIFEST_NAME).unlink()  # as after a crash while writing
+    np.save(cache / "label.npy", np.zeros((16, 6), np.float32))
+    pool = load_pooled([(a, None)], views=3, cache=cache)
+    np.testing.assert_array_equal(pool["label"], load_pooled([(a, None)], views=3)["label"])
+
+
+def test_bad_input_is_refused(runs, tmp_path):
+    a, _ = runs
+    with pytest.raises(FileNotFoundError, match="no data"):
+        load_pooled([(tmp_path / "empty", None)], views=3)
+    with pytest.raises(ValueError, match="fewer than 4"):
+        load_pooled([(a, None)], views=4)
+    with pytest.raises(ValueError, match="relabelled"):
+        load_pooled([(a, None)], views=3, relabel=lambda c: c["label"], cache=tmp_path / "c")
