@@ -1,12 +1,13 @@
-"""More training seeds of the shipped 2- and 1-view recipes, alone and in their hybrids.
+"""More training seeds of the shipped recipes, alone and in their hybrids.
 
-The shipped `residual-2views` / `residual-1view` (since session 24) are one seed of their
-recipe: a fresh student regressed 48000 steps on the pooled DAgger data of five lookahead-teacher
-runs (`offline.py`, distill seed 4), then DAgger continued two iterations with the student
-driving (`continue_dagger.py`, distill seed 5). Seeds S = 7, 8 (and 9 for one view) repeat
-both steps with distill seed S on the same pooled data (`seed_lane.sh VIEWS S ...`; README,
-"More seeds of the shipped 2- and 1-view recipes"), into
-`runs/offline/d<V>-pool5-48k-s<S>-dagger/`.
+The shipped `residual-3views` / `residual-2views` / `residual-1view` (since session 24) are one
+seed of their recipe: a fresh student regressed 48000 steps on the pooled DAgger data of
+lookahead-teacher runs (`offline.py`; four 3-view runs, distill seed 1, for 3 views; those and
+a 2-view run, distill seed 4, for 2 and 1 views), then DAgger continued two iterations with
+the student driving (`continue_dagger.py`, distill seed 5). Seeds S = 7, 8 (and 9 for one
+view) repeat both steps with distill seed S on the same pooled data (`seed_lane.sh VIEWS S
+...`; README, "More seeds of the shipped 2- and 1-view recipes" and "Seeds of the shipped
+3-view recipe"), into `runs/offline/<pool>-48k-s<S>-dagger/`.
 
 Each seed's student after two iterations (`policy_iteration1.pt`) is evaluated once its
 continuation has finished, on the 200 + 200 test tasks, alone and as the hybrid
@@ -17,7 +18,7 @@ student (`<V>v-dagger+2_test.json`, `../../table2/hybrid_residual-*.json`). Prin
 number of views and task family, the mean success and collision rate over seeds with rliable's
 95% stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt.
 
-    python results/stage2/ensemble/shipped_seeds.py [--views 2 1]
+    python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1]
     python results/stage2/ensemble/shipped_seeds.py --summarize-only
 """
 
@@ -35,14 +36,18 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 OUT = HERE / "seeds"
 TABLE2 = ROOT / "results" / "table2"
-SEEDS = {2: (7, 8), 1: (7, 8, 9)}
+SEEDS = {3: (7, 8), 2: (7, 8), 1: (7, 8, 9)}
 """Seed 10 of one view was planned, and stopped before it ran for the session's clock."""
 SHIPPED_SEED = 5
 """The continuation seed of the shipped students (their regression ran with distill seed 4)."""
 FAMILIES = ("obstacles", "blocked")
-WORDS = {2: "2 RGBD views", 1: "1 RGBD view"}
-SHIPPED = {2: "residual-2views", 1: "residual-1view"}
+WORDS = {3: "3 RGBD views", 2: "2 RGBD views", 1: "1 RGBD view"}
+SHIPPED = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
+POOLS = {3: "d3-pool4", 2: "d2-pool5", 1: "d1-pool5"}
+"""The pooled data's run-name stem by number of views (`seed_lane.sh`)."""
 SHIPPED_ROWS = {
+    (3, False): HERE / "3v-dagger+2_test.json",
+    (3, True): TABLE2 / "hybrid_residual-3views.json",
     (2, False): HERE / "2v-dagger+2_test.json",
     (1, False): HERE / "1v-dagger+2_test.json",
     (2, True): TABLE2 / "hybrid_residual-2views.json",
@@ -52,7 +57,7 @@ SHIPPED_ROWS = {
 
 
 def run_dir(views: int, seed: int) -> Path:
-    return ROOT / "runs" / "offline" / f"d{views}-pool5-48k-s{seed}-dagger"
+    return ROOT / "runs" / "offline" / f"{POOLS[views]}-48k-s{seed}-dagger"
 
 
 def _name(views: int, hybrid: bool) -> str:
@@ -98,7 +103,7 @@ def summarize(views: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--views", type=int, nargs="+", choices=sorted(SEEDS), default=[2, 1])
+    parser.add_argument("--views", type=int, nargs="+", choices=sorted(SEEDS), default=[3, 2, 1])
     parser.add_argument("--summarize-only", action="store_true", help="evaluate nothing")
     args = parser.parse_args()
     if not args.summarize_only:
