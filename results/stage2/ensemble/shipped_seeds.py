@@ -18,7 +18,7 @@ student (`<V>v-dagger+2_test.json`, `../../table2/hybrid_residual-*.json`). Prin
 number of views and task family, the mean success and collision rate over seeds with rliable's
 95% stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt.
 
-    python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1]
+    python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1] [--seeds 7 8]
     python results/stage2/ensemble/shipped_seeds.py --summarize-only
 """
 
@@ -104,11 +104,16 @@ def summarize(views: int) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, nargs="+", choices=sorted(SEEDS), default=[3, 2, 1])
+    parser.add_argument(
+        "--seeds", type=int, nargs="+", default=None, help="evaluate these seeds only"
+    )
     parser.add_argument("--summarize-only", action="store_true", help="evaluate nothing")
     args = parser.parse_args()
     if not args.summarize_only:
         for views in args.views:
             for seed in SEEDS[views]:
+                if args.seeds and seed not in args.seeds:
+                    continue
                 record = run_dir(views, seed) / "continue.json"
                 if record.is_file():  # (written when the continuation has finished)
                     _evaluate(views, seed)
