@@ -1,0 +1,19 @@
+#!/bin/bash
+# Rebuild 3-view DAgger runs behind the seed lanes' pool (runs/reseed/d3-seedS, not committed)
+# from their committed command (../shield/reseed/d3-seedS/config.json; README, "Seeds of the
+# shipped 3-view recipe"). A rerun resumes a run from its last iteration; a finished run
+# (summary.json) is skipped.
+#   results/stage2/ensemble/rebuild_pool.sh SEED...    (the runs behind the pool: 1 2 3 4)
+set -e
+cd "$(dirname "$0")/../../.."  # the repository root
+export MUJOCO_GL=egl OMP_NUM_THREADS=1
+for S in "$@"; do
+  RUN=runs/reseed/d3-seed$S
+  [ -f $RUN/summary.json ] && continue
+  .venv/bin/clamgen distill --preset residual-cpu --env.env-id CLAMGen/ReachMixed-v0 \
+    --distill.teacher results/stage2/distill/teacher/policy.pt --distill.iterations 10 \
+    --distill.episodes-per-iteration 300 --distill.updates-per-iteration 4000 \
+    --distill.pose-weight 1.0 --distill.lookahead-candidates 16 \
+    --distill.lookahead-fixed-offsets --env.num-views 3 --agent.encoder.num-views 3 \
+    --distill.seed $S --loop.torch-threads 1 --run-dir $RUN
+done
