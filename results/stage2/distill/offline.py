@@ -19,6 +19,11 @@ means on each state (distilling an ensemble of students into one, `results/stage
 `--pool-cache DIR` memory-maps the pooled data from uncompressed copies in DIR (written by the
 first job), so that two jobs on the same pool share one copy in memory
 (`clamgen.experiments.pooled`; the same values, the same regression).
+
+The regression saves its progress to `OUT/offline_progress.pt` every CHECKPOINT_UPDATES
+updates (weights, optimizer, random streams): the same command run again after a kill goes on
+from there (and refuses a progress file of other options); the file is removed once OUT is
+complete.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.config import config_from_json, config_to_json
@@ -44,6 +50,8 @@ from clamgen.experiments.stage2 import Stage2Config
 from clamgen.experiments.train import POLICY_NAME
 
 RELABEL_BATCH = 256
+PROGRESS_NAME = "offline_progress.pt"
+CHECKPOINT_UPDATES = 1000  # about a minute of regression on one core
 
 
 def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
@@ -54,6 +62,49 @@ def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
         obs = {k: v[start : start + RELABEL_BATCH] for k, v in chunk.items() if k != "label"}
         out[start : start + RELABEL_BATCH] = np.mean([a.mean_action(obs) for a in agents], axis=0)
     return out
+
+
+def regress_resumably(distiller: Distiller, updates: int, out: Path, job: dict) -> float | None:
+    """`distiller.regress(updates)` in chunks of CHECKPOINT_UPDATES, its state saved to
+    `out/PROGRESS_NAME` after each: run again, it goes on after the last saved chunk (the same
+    batches and weights as one uninterrupted run). `job` (JSON values) names the regression; a
+    progress file of another job is refused."""
+    path = out / PROGRESS_NAME
+    done, loss = 0, None
+    if path.exists():
+        state = ckpt.load_torch(path, kind="offline-progress")
+        if state["job"] != job:
+            raise SystemExit(
+                f"{path} is the progress of a regression with other options: "
+                "run the same command, or remove it to start again"
+            )
+        distiller.student.load_state_dict(state["student"])
+        distiller.optimizer.load_state_dict(state["optimizer"])
+        distiller.pose_head.load_state_dict(state["pose_head"])
+        distiller.rng.bit_generator.state = state["rng"]
+        done, loss = state["done"], state["loss"]
+        print(f"resumed after {done} of {updates} updates")
+    out.mkdir(parents=True, exist_ok=True)
+    with tqdm(total=updates, initial=done, desc="offline regression", unit="update") as bar:
+        while done < updates:
+            steps = min(CHECKPOINT_UPDATES, updates - done)
+            loss = distiller.regress(steps, "offline", show_progress=False)
+            done += steps
+            state = {
+                "format": ckpt.FORMAT,
+                "kind": "offline-progress",
+                "job": job,
+                "done": done,
+                "loss": loss,
+                "student": distiller.student.state_dict(),
+                "optimizer": distiller.optimizer.state_dict(),
+                "pose_head": distiller.pose_head.state_dict(),
+                "rng": distiller.rng.bit_generator.state,
+            }
+            ckpt.save_torch(path, state)
+            bar.update(steps)
+            bar.set_postfix(loss=f"{loss:.4f}")
+    return loss
 
 
 def main() -> None:
@@ -153,8 +204,14 @@ def main() -> None:
         raise SystemExit(str(error)) from None
     if args.torch_threads:
         torch.set_num_threads(args.torch_threads)
-    print(f"{args.updates} updates ...")
-    loss = distiller.regress(args.updates, "offline", show_progress=True)
+    job = {
+        "student": saved["student"],
+        "distill": dataclasses.asdict(settings),
+        "sources": [[str(run), iterations] for run, iterations in sources],
+        "relabel": [str(name) for name in args.relabel],
+        "updates": args.updates,
+    }
+    loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
     args.out.mkdir(parents=True, exist_ok=True)
     payload = distiller.policy_payload("offline")
@@ -196,6 +253,7 @@ def main() -> None:
     print(json.dumps(row))
     with (args.out / "offline.json").open("w") as f:
         json.dump(row, f, indent=2)
+    (args.out / PROGRESS_NAME).unlink()
 
 
 if __name__ == "__main__":

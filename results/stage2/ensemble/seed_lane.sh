@@ -4,6 +4,9 @@
 # the DAgger runs (3 views: four 3-view runs; 2 and 1 views: those and a 2-view run), then
 # DAgger continued two iterations, both with seed S. The pool is memory-mapped from
 # runs/pool-cache/ so that two lanes of the same view count share it in memory.
+# Run again after a kill, a lane goes on where it stopped: a finished regression (policy.pt)
+# is skipped, an unfinished one resumes from its last 1000 updates, a continuation from its
+# last iteration.
 #   results/stage2/ensemble/seed_lane.sh VIEWS SEED...    (VIEWS: 3, 2 or 1)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
