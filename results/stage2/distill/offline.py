@@ -78,10 +78,7 @@ def regress_resumably(distiller: Distiller, updates: int, out: Path, job: dict) 
                 f"{path} is the progress of a regression with other options: "
                 "run the same command, or remove it to start again"
             )
-        distiller.student.load_state_dict(state["student"])
-        distiller.optimizer.load_state_dict(state["optimizer"])
-        distiller.pose_head.load_state_dict(state["pose_head"])
-        distiller.rng.bit_generator.state = state["rng"]
+        distiller.load_regression_state(state)
         done, loss = state["done"], state["loss"]
         print(f"resumed after {done} of {updates} updates")
     out.mkdir(parents=True, exist_ok=True)
@@ -96,10 +93,7 @@ def regress_resumably(distiller: Distiller, updates: int, out: Path, job: dict) 
                 "job": job,
                 "done": done,
                 "loss": loss,
-                "student": distiller.student.state_dict(),
-                "optimizer": distiller.optimizer.state_dict(),
-                "pose_head": distiller.pose_head.state_dict(),
-                "rng": distiller.rng.bit_generator.state,
+                **distiller.regression_state(),
             }
             ckpt.save_torch(path, state)
             bar.update(steps)
@@ -196,8 +190,6 @@ def main() -> None:
         relabellers = [load_policy(name)[0].agent for name in args.relabel]
     sources = [(args.run_dir, args.iterations), *((run, None) for run in args.pool)]
     relabel = (lambda chunk: mean_labels(relabellers, chunk)) if relabellers else None
-    if relabel and args.pool_cache:
-        raise SystemExit("--pool-cache holds the teachers' labels: not with --relabel")
     try:
         distiller.data.arrays = load_pooled(sources, views, relabel, args.pool_cache)
     except (FileNotFoundError, ValueError) as error:
@@ -213,7 +205,6 @@ def main() -> None:
     }
     loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
-    args.out.mkdir(parents=True, exist_ok=True)
     payload = distiller.policy_payload("offline")
     payload["offline"] = {
         "source": str(args.run_dir),

@@ -523,21 +523,32 @@ class Distiller:
             "kind": "distill",
             "iteration": self.history[-1]["iteration"],
             "final": self.final,
-            "student": self.student.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "pose_head": self.pose_head.state_dict(),
-            "rng": self.rng.bit_generator.state,
+            **self.regression_state(),
             "next_seed": self.next_seed,
             "history": self.history,
             "lookahead_rng": self.lookahead.rng.bit_generator.state if self.lookahead else None,
         }
 
-    def load_resume_state(self, state: dict[str, Any]) -> None:
-        """Restore what `resume_state` saved (the data is added by the caller)."""
+    def regression_state(self) -> dict[str, Any]:
+        """What `regress` changes: the student's and pose head's weights, the optimizer and the
+        batch stream (the student's state holds its own random generator)."""
+        return {
+            "student": self.student.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "pose_head": self.pose_head.state_dict(),
+            "rng": self.rng.bit_generator.state,
+        }
+
+    def load_regression_state(self, state: dict[str, Any]) -> None:
+        """Restore what `regression_state` saved."""
         self.student.load_state_dict(state["student"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.pose_head.load_state_dict(state["pose_head"])
         self.rng.bit_generator.state = state["rng"]
+
+    def load_resume_state(self, state: dict[str, Any]) -> None:
+        """Restore what `resume_state` saved (the data is added by the caller)."""
+        self.load_regression_state(state)
         self.next_seed = state["next_seed"]
         self.history = list(state["history"])
         self.final = state.get("final")

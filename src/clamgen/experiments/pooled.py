@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import fcntl
 import json
-import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -124,8 +123,7 @@ def _mapped(per_run: list[tuple[Path, list[Path]]], views: int, cache: Path) -> 
                 array.flush()
             manifest = {"inputs": inputs, "keys": sorted(arrays)}
             del arrays
-            tmp = manifest_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(manifest, indent=1))
-            os.replace(tmp, manifest_path)
+            text = json.dumps(manifest, indent=1)
+            ckpt.atomic_write(manifest_path, lambda tmp: tmp.write_text(text))
             print(f"pool cached in {cache}")
         return {key: np.load(cache / f"{key}.npy", mmap_mode="r") for key in manifest["keys"]}
