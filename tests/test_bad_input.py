@@ -407,7 +407,7 @@ def test_debug_shows_the_error_itself(workdir):
 
 
 def test_the_console_command_prints_one_line_and_exits_1(workdir):
-    command = [sys.executable, "-m", "clamgen.cli", "train", "--run-dir", "run"]
+    command = [sys.executable, "-m", "clamgen", "train", "--run-dir", "run"]
     result = subprocess.run(
         [*command, "--agent.batch-size", "0"], capture_output=True, text=True, timeout=600
     )

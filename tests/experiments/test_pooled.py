@@ -99,5 +99,23 @@ def test_bad_input_is_refused(runs, tmp_path):
         load_pooled([(tmp_path / "empty", None)], views=3)
     with pytest.raises(ValueError, match="fewer than 4"):
         load_pooled([(a, None)], views=4)
-    with pytest.raises(ValueError, match="relabelled"):
-        load_pooled([(a, None)], views=3, relabel=lambda c: c["label"], cache=tmp_path / "c")
+
+
+def test_relabelled_cached_pool_equals_the_relabelled_pool_in_memory(runs, tmp_path, monkeypatch):
+    a, b = runs
+    monkeypatch.setattr("clamgen.experiments.pooled.RELABEL_CHUNK", 4)  # several calls per run
+
+    def relabel(chunk):  # a label that depends on the chunk's inputs, not on its position
+        return chunk["proprio"][:, :6] + chunk["images"].mean(axis=(1, 2, 3, 4))[:, None]
+
+    sources = [(a, None), (b, None)]
+    in_memory = load_pooled(sources, views=2, relabel=relabel)
+    cache = tmp_path / "cache"
+    mapped = load_pooled(sources, views=2, relabel=relabel, cache=cache)
+    np.testing.assert_allclose(mapped["label"], in_memory["label"], rtol=1e-6)
+    np.testing.assert_array_equal(mapped["images"], in_memory["images"])
+    assert not np.allclose(mapped["label"], load_pooled(sources, views=2)["label"])
+    # the cache keeps the teachers' labels for the next job
+    np.testing.assert_array_equal(
+        load_pooled(sources, views=2, cache=cache)["label"], load_pooled(sources, views=2)["label"]
+    )

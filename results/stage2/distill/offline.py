@@ -18,7 +18,8 @@ student's (a 3-view run's data holds the first two cameras a 2-view student sees
 means on each state (distilling an ensemble of students into one, `results/stage2/ensemble/`);
 `--pool-cache DIR` memory-maps the pooled data from uncompressed copies in DIR (written by the
 first job), so that two jobs on the same pool share one copy in memory
-(`clamgen.experiments.pooled`; the same values, the same regression).
+(`clamgen.experiments.pooled`; the same values, the same regression; relabelled labels are
+held in memory beside the mapped images).
 
 The regression saves its progress to `OUT/offline_progress.pt` every CHECKPOINT_UPDATES
 updates (weights, optimizer, random streams): the same command run again after a kill goes on

@@ -46,6 +46,17 @@ MEMBERS = {
     "seed2r": str(ROOT / "runs" / "reseed" / "d3-seed2" / "policy.pt"),
 }
 MEAN = "mean"
+SEEDS = HERE / "seeds"
+MEANS = {
+    MEAN: tuple(MEMBERS.values()),
+    # Session 27: the three seeds of the shipped 3-view recipe (seed 5 is `residual-3views`).
+    "3v-mean578": (
+        str(HERE / "3v-dagger+2_policy.pt"),
+        str(SEEDS / "d3_seed7_policy.pt"),
+        str(SEEDS / "d3_seed8_policy.pt"),
+    ),
+}
+"""Mean-action policies: each name's members act on the same observation, their mean is taken."""
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
@@ -78,6 +89,12 @@ STUDENTS = {
     "3v-dagger+2-s6": str(
         ROOT / "runs" / "offline" / "d3-pool4-48k-dagger-s6" / "policy_iteration1.pt"
     ),
+    # Session 27: the three 3-view seeds (committed policy files; seed 5 is the shipped one)
+    # and one student regressed on their mean action over the rebuilt four-run pool.
+    "3v-s5": str(HERE / "3v-dagger+2_policy.pt"),
+    "3v-s7": str(SEEDS / "d3_seed7_policy.pt"),
+    "3v-s8": str(SEEDS / "d3_seed8_policy.pt"),
+    "3v-mean578-distilled": str(ROOT / "runs" / "offline" / "d3-mean578" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -101,6 +118,8 @@ COMPARED = {
     "1v-dagger+2": ("1v-pool5-48k", "1v-seed0"),
     "2v-dagger+4": ("2v-dagger+2",),
     "3v-dagger+2-s6": ("3v-pool4-48k",),
+    **{seed: ("3v-mean578",) for seed in ("3v-s5", "3v-s7", "3v-s8")},
+    "3v-mean578-distilled": ("3v-mean578", "3v-s5", "3v-s7", "3v-s8"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 
@@ -128,10 +147,10 @@ def done(out: Path = OUT) -> list[dict]:
 def load(name: str):
     from clamgen.experiments.policies import load_policy
 
-    if name != MEAN:
+    if name not in MEANS:
         policy, _, kwargs = load_policy({**MEMBERS, **STUDENTS}[name])
         return policy, kwargs
-    loaded = [load_policy(path) for path in MEMBERS.values()]
+    loaded = [load_policy(path) for path in MEANS[name]]
     kwargs = loaded[0][2]
     if any(other[2] != kwargs for other in loaded[1:]):
         raise SystemExit("the members observe with different env options")
@@ -169,7 +188,7 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (*MEMBERS, MEAN, *STUDENTS):
+        for name in (*MEMBERS, *MEANS, *STUDENTS):
             line = by.get((name, family))
             if line is None:
                 continue
@@ -194,7 +213,7 @@ def main() -> None:
     parser.add_argument("--num-standard", type=int, default=100)
     parser.add_argument("--offset", type=int, default=70_000)
     parser.add_argument(
-        "--policies", nargs="+", choices=[*MEMBERS, MEAN, *STUDENTS], default=[*MEMBERS, MEAN]
+        "--policies", nargs="+", choices=[*MEMBERS, *MEANS, *STUDENTS], default=[*MEMBERS, MEAN]
     )
     parser.add_argument(
         "--out", type=Path, default=OUT, help="the JSON-lines file (one per block of tasks)"

@@ -28,6 +28,7 @@ import argparse
 import shlex
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 from clamgen.experiments.aggregate import row_scores, seed_lines
@@ -79,7 +80,7 @@ def _evaluate(views: int, seed: int) -> None:
         out = _out(views, seed, hybrid)
         if out.with_suffix(".json").is_file():
             continue
-        command = ["clamgen", "eval", "--table", "2"]
+        command = [sys.executable, "-m", "clamgen", "eval", "--table", "2"]
         command += ["--policy", str((source / "policy_iteration1.pt").relative_to(ROOT))]
         command += ["--depth-hybrid"] if hybrid else []
         command += ["--num-tasks", "200", "--name", _name(views, hybrid)]

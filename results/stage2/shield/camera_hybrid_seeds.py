@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import subprocess
+import sys
 from pathlib import Path
 
 from clamgen.experiments.aggregate import row_scores, seed_lines
@@ -72,7 +73,7 @@ def _evaluate(views: int, seed: int) -> None:
         if out.with_suffix(".json").is_file():
             continue
         name = _hybrid_name(views) if hybrid else _student_name(views)
-        command = ["clamgen", "eval", "--table", "2", "--policy", str(policy)]
+        command = [sys.executable, "-m", "clamgen", "eval", "--table", "2", "--policy", str(policy)]
         command += ["--depth-hybrid"] if hybrid else []
         command += ["--num-tasks", "200", "--name", name, "--out", str(out)]
         print("$", shlex.join(command), flush=True)

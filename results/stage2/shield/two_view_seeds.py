@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import subprocess
+import sys
 from pathlib import Path
 
 from clamgen.experiments.aggregate import row_scores, seed_lines
@@ -46,7 +47,17 @@ def _evaluate(seed: int) -> None:
     policy = RUNS / RUN / f"seed{seed}" / "policy.pt"
     if not policy.is_file():
         raise SystemExit(f"{policy} is not trained yet: run the shipped-1view sweep first")
-    command = ["clamgen", "eval", "--table", "2", "--policy", str(policy), *HYBRID_THEN]
+    command = [
+        sys.executable,
+        "-m",
+        "clamgen",
+        "eval",
+        "--table",
+        "2",
+        "--policy",
+        str(policy),
+        *HYBRID_THEN,
+    ]
     command += ["--num-tasks", "200", "--name", NAME, "--out", str(out)]
     print("$", shlex.join(command), flush=True)
     subprocess.run(command, check=True)

@@ -23,6 +23,7 @@ from clamgen.experiments import checkpoint as ckpt
 MANIFEST_NAME = "manifest.json"
 LOCK_NAME = "lock"
 
+RELABEL_CHUNK = 4096  # states read from a memory-mapped pool per relabelling call
 Relabel = Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
@@ -88,13 +89,25 @@ def load_pooled(
 
     With `cache`, the arrays are memory-mapped read-only from `cache/<key>.npy`, written there
     first unless the cache already holds exactly these files (paths, sizes, modification times)
-    at this view count. Processes that start together wait on a lock while one writes it."""
+    at this view count. Processes that start together wait on a lock while one writes it.
+    The cache holds the teachers' labels: a relabelled pool maps the cache and holds its new
+    labels in memory (they are small), read RELABEL_CHUNK states at a time."""
     per_run = _files(sources)
     if cache is None:
         return _fill(per_run, views, relabel, lambda _, shape, dtype: np.empty(shape, dtype))
+    arrays = _mapped(per_run, views, Path(cache))
     if relabel is not None:
-        raise ValueError("a pool cache holds the teachers' labels: relabelled pools are not cached")
-    return _mapped(per_run, views, Path(cache))
+        arrays["label"] = _relabelled(arrays, relabel)
+    return arrays
+
+
+def _relabelled(arrays: dict[str, np.ndarray], relabel: Relabel) -> np.ndarray:
+    labels = np.empty(arrays["label"].shape, arrays["label"].dtype)
+    for start in range(0, len(labels), RELABEL_CHUNK):
+        chunk = {k: np.array(v[start : start + RELABEL_CHUNK]) for k, v in arrays.items()}
+        labels[start : start + RELABEL_CHUNK] = relabel(chunk)
+    print(f"{len(labels)} samples relabelled")
+    return labels
 
 
 def _inputs(per_run: list[tuple[Path, list[Path]]], views: int) -> dict:
