@@ -10,13 +10,16 @@ view) repeat both steps with distill seed S on the same pooled data (`seed_lane.
 3-view recipe"), into `runs/offline/<pool>-48k-s<S>-dagger/`.
 
 Each seed's student after two iterations (`policy_iteration1.pt`) is evaluated once its
-continuation has finished, on the 200 + 200 test tasks, alone and as the hybrid
-(`clamgen eval --depth-hybrid`), choosing nothing (`seeds/student<V>_seed<S>.json`,
+continuation has finished, on the 200 + 200 test tasks, alone, through the hybrid's depth
+shield without its planner (session 27), and as the hybrid (`clamgen eval --depth-hybrid`),
+choosing nothing (`seeds/student<V>_seed<S>.json`, `seeds/shielded<V>_seed<S>.json`,
 `seeds/hybrid<V>_seed<S>.json`; skipped when they exist); its continuation's record is copied
 beside them (`seeds/d<V>_seed<S>.continue.json`, `.offline.json`). Seed 5 is the shipped
-student (`<V>v-dagger+2_test.json`, `../../table2/hybrid_residual-*.json`). Prints, per
-number of views and task family, the mean success and collision rate over seeds with rliable's
-95% stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt.
+student (`<V>v-dagger+2_test.json`, `../../table2/shielded_fine_residual-*.json`,
+`../../table2/hybrid_residual-*.json`). The 2- and 1-view seeds' policy files went with a
+lost machine's `runs/`, so their shield rows have the shipped seed only. Prints, per number
+of views and task family, the mean success and collision rate over seeds with rliable's 95%
+stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt.
 
     python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1] [--seeds 7 8]
     python results/stage2/ensemble/shipped_seeds.py --summarize-only
@@ -32,6 +35,7 @@ import sys
 from pathlib import Path
 
 from clamgen.experiments.aggregate import row_scores, seed_lines
+from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -46,28 +50,57 @@ WORDS = {3: "3 RGBD views", 2: "2 RGBD views", 1: "1 RGBD view"}
 SHIPPED = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 POOLS = {3: "d3-pool4", 2: "d2-pool5", 1: "d1-pool5"}
 """The pooled data's run-name stem by number of views (`seed_lane.sh`)."""
+KINDS = ("alone", "shielded", "hybrid")
+"""How a seed's student acts: alone; through the hybrid's depth shield (1 cm, 128-pixel depth
+cameras, for one view the unseen-space test) without its planner; as the hybrid."""
 SHIPPED_ROWS = {
-    (3, False): HERE / "3v-dagger+2_test.json",
-    (3, True): TABLE2 / "hybrid_residual-3views.json",
-    (2, False): HERE / "2v-dagger+2_test.json",
-    (1, False): HERE / "1v-dagger+2_test.json",
-    (2, True): TABLE2 / "hybrid_residual-2views.json",
-    (1, True): TABLE2 / "hybrid_residual-1view.json",
+    (3, "alone"): HERE / "3v-dagger+2_test.json",
+    (2, "alone"): HERE / "2v-dagger+2_test.json",
+    (1, "alone"): HERE / "1v-dagger+2_test.json",
+    **{(v, "shielded"): TABLE2 / f"shielded_fine_{SHIPPED[v]}.json" for v in SHIPPED},
+    **{(v, "hybrid"): TABLE2 / f"hybrid_{SHIPPED[v]}.json" for v in SHIPPED},
 }
-"""The shipped students' own test rows (seed 5), alone and in their hybrids."""
+"""The shipped students' own test rows (seed 5), alone, shielded and in their hybrids."""
+STEMS = {"alone": "student", "shielded": "shielded", "hybrid": "hybrid"}
+"""A seed's row file stem by kind (`seeds/<stem><V>_seed<S>.json`)."""
 
 
 def run_dir(views: int, seed: int) -> Path:
     return ROOT / "runs" / "offline" / f"{POOLS[views]}-48k-s{seed}-dagger"
 
 
-def _name(views: int, hybrid: bool) -> str:
+def _name(views: int, kind: str) -> str:
     student = f"CLAMGen, {WORDS[views]}, student of the shipped `{SHIPPED[views]}` recipe (ours)"
-    return student + (" + the hybrid's depth shield and planner" if hybrid else ", alone")
+    return (
+        student
+        + {
+            "alone": ", alone",
+            "shielded": " + the hybrid's depth shield, no planner",
+            "hybrid": " + the hybrid's depth shield and planner",
+        }[kind]
+    )
 
 
-def _out(views: int, seed: int, hybrid: bool) -> Path:
-    return OUT / (f"hybrid{views}_seed{seed}" if hybrid else f"student{views}_seed{seed}")
+def _flags(views: int, kind: str) -> list[str]:
+    if kind == "hybrid":
+        return ["--depth-hybrid"]
+    if kind == "alone":
+        return []
+    guard = HYBRID[views]  # the hybrid's shield, its planner left out
+    flags = [
+        "--depth-shield-m",
+        str(guard.margin_m),
+        "--depth-fine-size",
+        str(guard.fine_depth_size),
+    ]
+    if guard.shadow_m:
+        flags += ["--depth-shadow-m", str(guard.shadow_m)]
+        flags += ["--depth-shadow-behind-surfaces"] if guard.shadow_behind_surfaces else []
+    return flags
+
+
+def _out(views: int, seed: int, kind: str) -> Path:
+    return OUT / f"{STEMS[kind]}{views}_seed{seed}"
 
 
 def _evaluate(views: int, seed: int) -> None:
@@ -76,14 +109,14 @@ def _evaluate(views: int, seed: int) -> None:
     shutil.copyfile(source / "continue.json", OUT / f"d{views}_seed{seed}.continue.json")
     offline = source.parent / source.name.removesuffix("-dagger") / "offline.json"
     shutil.copyfile(offline, OUT / f"d{views}_seed{seed}.offline.json")
-    for hybrid in (False, True):
-        out = _out(views, seed, hybrid)
+    for kind in KINDS:
+        out = _out(views, seed, kind)
         if out.with_suffix(".json").is_file():
             continue
         command = [sys.executable, "-m", "clamgen", "eval", "--table", "2"]
         command += ["--policy", str((source / "policy_iteration1.pt").relative_to(ROOT))]
-        command += ["--depth-hybrid"] if hybrid else []
-        command += ["--num-tasks", "200", "--name", _name(views, hybrid)]
+        command += _flags(views, kind)
+        command += ["--num-tasks", "200", "--name", _name(views, kind)]
         command += ["--out", str(out.relative_to(ROOT))]
         print("$", shlex.join(command), flush=True)
         subprocess.run(command, check=True, cwd=ROOT)
@@ -91,13 +124,13 @@ def _evaluate(views: int, seed: int) -> None:
 
 def summarize(views: int) -> str:
     lines = []
-    for hybrid in (False, True):
-        found = [(SHIPPED_SEED, row_scores(SHIPPED_ROWS[views, hybrid]))]
+    for kind in KINDS:
+        found = [(SHIPPED_SEED, row_scores(SHIPPED_ROWS[views, kind]))]
         for seed in SEEDS[views]:
-            path = _out(views, seed, hybrid).with_suffix(".json")
+            path = _out(views, seed, kind).with_suffix(".json")
             if path.is_file():
                 found.append((seed, row_scores(path)))
-        lines.append(f"{_name(views, hybrid)}; {len(found)} seeds {[s for s, _ in found]}")
+        lines.append(f"{_name(views, kind)}; {len(found)} seeds {[s for s, _ in found]}")
         lines += seed_lines([scores for _, scores in found], FAMILIES)
     return "\n".join(lines)
 
