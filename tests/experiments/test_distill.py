@@ -18,6 +18,7 @@ from clamgen.experiments.distill import (
     DistillSettings,
     pose_loss,
     scale_lengths,
+    target_clearance_m,
 )
 from clamgen.experiments.lookahead import LookaheadPolicy
 from clamgen.experiments.policies import load_policy
@@ -339,3 +340,41 @@ def test_a_student_with_candidate_actions_trains_saves_and_acts(tmp_path, base_p
     # RL trains one Gaussian: candidate actions are refused there.
     with pytest.raises(ValueError, match="actor_components > 1 is for distilled students"):
         Stage2Trainer(student)
+
+
+def test_target_clearance_is_the_distance_to_the_nearest_obstacle_box():
+    # [is_box, is_cylinder, x, y, z, hx, hy, hz]: a 10 cm cube at the origin, one at x = 1 m.
+    obstacles = np.array([[1, 0, 0, 0, 0, 0.05, 0.05, 0.05], [1, 0, 1, 0, 0, 0.05, 0.05, 0.05]])
+    goals = np.array([[0.08, 0, 0], [0.5, 0, 0], [0.0, 0.01, 0.0], [0.08, 0.09, 0.0]])
+    clearance = target_clearance_m(goals, np.repeat(obstacles[None], len(goals), axis=0))
+    np.testing.assert_allclose(clearance, [0.03, 0.45, 0.0, 0.05], atol=1e-12)
+
+
+def test_batches_draw_states_near_their_target_more_often(tmp_path, base_policy, teacher):
+    uniform = Distiller(distill_config(tmp_path / "u", base_policy, teacher))
+    weighted = Distiller(
+        distill_config(tmp_path / "w", base_policy, teacher, near_target_weight=4.0)
+    )
+    n = 1000
+    goals = np.zeros((n, 3))
+    goals[:, 0] = np.where(np.arange(n) % 4 == 0, 0.06, 0.5)  # every 4th: 1 cm from the box
+    box = np.array([1, 0, 0, 0, 0, 0.05, 0.05, 0.05])
+    for distiller in (uniform, weighted):
+        distiller.data.arrays = {
+            "desired_goal": goals,
+            "obstacles": np.tile(box, (n, 2, 1)),
+            "label": np.zeros((n, 6)),
+        }
+    # Weight 1 keeps the random stream of runs made before the setting existed.
+    expected = np.random.default_rng([0, 1]).integers(0, n, 64)
+    np.testing.assert_array_equal(uniform.batch_index(64), expected)
+    drawn = weighted.batch_index(40_000)
+    near_share = np.mean(drawn % 4 == 0)
+    assert abs(near_share - 4 / 7) < 0.02  # weight 4 for a quarter of the states: 4 / (4 + 3)
+    part = weighted.draw(600, 1000, 10_000)
+    assert part.min() >= 600 and part.max() < 1000
+    assert abs(np.mean(part % 4 == 0) - 4 / 7) < 0.03
+    with pytest.raises(ValueError, match=r"distill\.near_target_weight"):
+        DistillSettings(near_target_weight=0.0)
+    with pytest.raises(ValueError, match=r"distill\.near_target_m"):
+        DistillSettings(near_target_m=-0.01)

@@ -69,6 +69,10 @@ class PoolAndNew:
     def __len__(self) -> int:
         return self.pool_size + self.new_size
 
+    def column(self, key: str) -> np.ndarray:
+        """Every state's `key` (a small one: it is copied), pool first."""
+        return np.concatenate([self.pool[key], *([self.new[key]] if self.new_size else [])])
+
     def _gather(self, key: str, index: np.ndarray) -> np.ndarray:
         # Pool rows first, then new rows: every key of one batch in the same order.
         old = index < self.pool_size
@@ -92,8 +96,8 @@ class Continuation(Distiller):
     def batch_index(self, batch_size: int) -> np.ndarray:
         data = self.data
         fresh = round(self.new_share * batch_size) if data.new_size else 0
-        old = self.rng.integers(0, data.pool_size, batch_size - fresh)
-        new = data.pool_size + self.rng.integers(0, max(data.new_size, 1), fresh)
+        old = self.draw(0, data.pool_size, batch_size - fresh)
+        new = self.draw(data.pool_size, len(data), fresh) if fresh else np.zeros(0, int)
         return np.concatenate([old, new])
 
 

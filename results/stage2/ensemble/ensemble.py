@@ -95,6 +95,13 @@ STUDENTS = {
     "3v-s7": str(SEEDS / "d3_seed7_policy.pt"),
     "3v-s8": str(SEEDS / "d3_seed8_policy.pt"),
     "3v-mean578-distilled": str(ROOT / "runs" / "offline" / "d3-mean578" / "policy.pt"),
+    # ... and the regressions of seeds 7 and 8 before their continuation, against the same
+    # regressions with the states near their target drawn three times as often.
+    **{
+        f"3v-{kind}-s{seed}": str(ROOT / "runs" / "offline" / f"{stem}-s{seed}" / "policy.pt")
+        for seed in (7, 8)
+        for kind, stem in (("reg", "d3-pool4-48k"), ("near3", "d3-near3"))
+    },
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -120,6 +127,8 @@ COMPARED = {
     "3v-dagger+2-s6": ("3v-pool4-48k",),
     **{seed: ("3v-mean578",) for seed in ("3v-s5", "3v-s7", "3v-s8")},
     "3v-mean578-distilled": ("3v-mean578", "3v-s5", "3v-s7", "3v-s8"),
+    "3v-near3-s7": ("3v-reg-s7",),
+    "3v-near3-s8": ("3v-reg-s8",),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 

@@ -137,6 +137,14 @@ class DistillSettings:
     """The lookahead searches among one fixed library of perturbed plans (drawn once from the
     seed) instead of fresh draws at every search, so that nearby states get consistent labels
     (`clamgen.experiments.lookahead`). False: fresh draws, as every run before it was added."""
+    near_target_weight: float = 1.0
+    """Regression batches draw the states whose target lies within `near_target_m` of an
+    obstacle's surface this many times as often as the others (beyond the paper; 1: uniform,
+    as every run before it was added). The blocked tasks that every 3-view student fails have
+    their target next to an obstacle (`results/stage2/ensemble/shared_failures.py`)."""
+    near_target_m: float = 0.02
+    """The distance (m) from the target to the nearest obstacle's axis-aligned box under which
+    a state counts as near for `near_target_weight`."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -168,6 +176,14 @@ class DistillSettings:
             raise ValueError(f"distill.pose_weight must be a number >= 0, got {self.pose_weight}")
         if not self.lr > 0:
             raise ValueError(f"distill.lr must be > 0, got {self.lr}")
+        if not 0 < self.near_target_weight < float("inf"):
+            raise ValueError(
+                f"distill.near_target_weight must be a number > 0, got {self.near_target_weight}"
+            )
+        if not 0 <= self.near_target_m < float("inf"):
+            raise ValueError(
+                f"distill.near_target_m must be a number >= 0, got {self.near_target_m}"
+            )
 
 
 @dataclass(frozen=True)
@@ -180,6 +196,14 @@ class DistillConfig:
     family), agent, base policy, run_dir."""
     distill: DistillSettings = field(default_factory=DistillSettings)
     """The DAgger loop."""
+
+
+def target_clearance_m(goals: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
+    """(N,) distance (m) from each state's target (N, 3) to the nearest of its obstacles
+    (N, K, POSE_SIZE as `Obstacles.as_array`), each taken as its axis-aligned box; 0 inside."""
+    centres, halves = obstacles[..., 2:5], obstacles[..., 5:8]
+    outside = np.maximum(np.abs(goals[:, None, :] - centres) - halves, 0.0)
+    return np.linalg.norm(outside, axis=-1).min(axis=-1)
 
 
 def student_keys(obs_source: str) -> tuple[str, ...]:
@@ -202,6 +226,10 @@ class _Dataset:
 
     def __len__(self) -> int:
         return len(self.arrays.get("label", ()))
+
+    def column(self, key: str) -> np.ndarray:
+        """Every state's `key`, in index order."""
+        return self.arrays[key]
 
     def batch(self, index: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
         obs = {k: self.arrays[k][index] for k in self.keys}
@@ -279,6 +307,7 @@ class Distiller:
         self.optimizer = torch.optim.Adam(params, lr=settings.lr)
         self.rng = np.random.default_rng([settings.seed, 1])
         self.data = _Dataset(self.keys)
+        self._weights_cdf = np.zeros(0)  # near_target_weight's, for the data's current size
         self.history: list[dict[str, Any]] = []
         self.final: dict[str, Any] | None = None  # the polished student's validation
         self.next_seed = DISTILL_SEED_BASE + settings.seed * 100_000
@@ -479,8 +508,28 @@ class Distiller:
         return loss_value
 
     def batch_index(self, batch_size: int) -> np.ndarray:
-        """The states of one regression batch: uniform over all data."""
-        return self.rng.integers(0, len(self.data), batch_size)
+        """The states of one regression batch, drawn from all data (`draw`)."""
+        return self.draw(0, len(self.data), batch_size)
+
+    def draw(self, low: int, high: int, size: int) -> np.ndarray:
+        """`size` state indices from [low, high): uniform, or with the states near their target
+        (`near_target_m`) `near_target_weight` times as likely as the others."""
+        if self.config.distill.near_target_weight == 1.0:
+            return self.rng.integers(low, high, size)  # the random stream of earlier runs
+        cdf = self._cdf()
+        start = cdf[low - 1] if low else 0.0
+        drawn = np.searchsorted(cdf, self.rng.uniform(start, cdf[high - 1], size), side="right")
+        return np.clip(drawn, low, high - 1)
+
+    def _cdf(self) -> np.ndarray:
+        if len(self._weights_cdf) != len(self.data):  # new states since it was built
+            settings = self.config.distill
+            clearance = target_clearance_m(
+                self.data.column("desired_goal"), self.data.column("obstacles")
+            )
+            weights = np.where(clearance < settings.near_target_m, settings.near_target_weight, 1.0)
+            self._weights_cdf = np.cumsum(weights)
+        return self._weights_cdf
 
     def _pose_loss_on(self) -> bool:
         return self.vision and self.config.distill.pose_weight > 0
