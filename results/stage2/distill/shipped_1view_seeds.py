@@ -87,16 +87,8 @@ def _evaluate(seed: int, student: Path) -> None:
         out = OUT / f"seed{seed}_{key}"
         if out.with_suffix(".json").is_file():
             continue
-        command = [
-            sys.executable,
-            "-m",
-            "clamgen",
-            "eval",
-            "--table",
-            "2",
-            "--policy",
-            str(student / "policy.pt"),
-        ]
+        command = [sys.executable, "-m", "clamgen", "eval", "--table", "2"]
+        command += ["--policy", str(student / "policy.pt")]
         _run([*command, *flags, "--num-tasks", "200", "--name", name, "--out", str(out)])
 
 

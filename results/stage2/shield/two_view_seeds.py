@@ -47,17 +47,8 @@ def _evaluate(seed: int) -> None:
     policy = RUNS / RUN / f"seed{seed}" / "policy.pt"
     if not policy.is_file():
         raise SystemExit(f"{policy} is not trained yet: run the shipped-1view sweep first")
-    command = [
-        sys.executable,
-        "-m",
-        "clamgen",
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        str(policy),
-        *HYBRID_THEN,
-    ]
+    command = [sys.executable, "-m", "clamgen", "eval", "--table", "2"]
+    command += ["--policy", str(policy), *HYBRID_THEN]
     command += ["--num-tasks", "200", "--name", NAME, "--out", str(out)]
     print("$", shlex.join(command), flush=True)
     subprocess.run(command, check=True)
