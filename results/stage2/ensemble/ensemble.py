@@ -30,6 +30,7 @@ the label and once with the teacher's (the control), same tasks.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -57,6 +58,9 @@ MEANS = {
     ),
 }
 """Mean-action policies: each name's members act on the same observation, their mean is taken."""
+GUARDED = {"3v-s5+shield": ("3v-s5", False), "3v-s5+hybrid": ("3v-s5", True)}
+"""Session 27: the shipped 3-view student through the hybrid's depth shield (`HYBRID[3]`),
+without or with its planner (which tasks the safety layer turns into successes)."""
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
@@ -127,6 +131,8 @@ COMPARED = {
     "3v-dagger+2-s6": ("3v-pool4-48k",),
     **{seed: ("3v-mean578",) for seed in ("3v-s5", "3v-s7", "3v-s8")},
     "3v-mean578-distilled": ("3v-mean578", "3v-s5", "3v-s7", "3v-s8"),
+    "3v-s5+shield": ("3v-s5",),
+    "3v-s5+hybrid": ("3v-s5", "3v-s5+shield"),
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
@@ -156,6 +162,15 @@ def done(out: Path = OUT) -> list[dict]:
 def load(name: str):
     from clamgen.experiments.policies import load_policy
 
+    if name in GUARDED:
+        from clamgen.experiments.depth_planner import HYBRID
+
+        base, planner = GUARDED[name]
+        policy, kwargs = load(base)
+        guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner)
+        return guard.wrap(
+            policy, kwargs["num_views"], kwargs["image_size"]
+        ), kwargs | guard.env_kwargs()
     if name not in MEANS:
         policy, _, kwargs = load_policy({**MEMBERS, **STUDENTS}[name])
         return policy, kwargs
@@ -197,7 +212,7 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (*MEMBERS, *MEANS, *STUDENTS):
+        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED):
             line = by.get((name, family))
             if line is None:
                 continue
@@ -222,7 +237,10 @@ def main() -> None:
     parser.add_argument("--num-standard", type=int, default=100)
     parser.add_argument("--offset", type=int, default=70_000)
     parser.add_argument(
-        "--policies", nargs="+", choices=[*MEMBERS, *MEANS, *STUDENTS], default=[*MEMBERS, MEAN]
+        "--policies",
+        nargs="+",
+        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED],
+        default=[*MEMBERS, MEAN],
     )
     parser.add_argument(
         "--out", type=Path, default=OUT, help="the JSON-lines file (one per block of tasks)"

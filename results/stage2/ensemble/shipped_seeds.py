@@ -28,6 +28,7 @@ stratified-bootstrap interval and each seed's value, and writes shipped_seeds.tx
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shlex
 import shutil
 import subprocess
@@ -86,17 +87,7 @@ def _flags(views: int, kind: str) -> list[str]:
         return ["--depth-hybrid"]
     if kind == "alone":
         return []
-    guard = HYBRID[views]  # the hybrid's shield, its planner left out
-    flags = [
-        "--depth-shield-m",
-        str(guard.margin_m),
-        "--depth-fine-size",
-        str(guard.fine_depth_size),
-    ]
-    if guard.shadow_m:
-        flags += ["--depth-shadow-m", str(guard.shadow_m)]
-        flags += ["--depth-shadow-behind-surfaces"] if guard.shadow_behind_surfaces else []
-    return flags
+    return list(dataclasses.replace(HYBRID[views], planner=False).flags())
 
 
 def _out(views: int, seed: int, kind: str) -> Path:
