@@ -99,6 +99,9 @@ STUDENTS = {
     "3v-s7": str(SEEDS / "d3_seed7_policy.pt"),
     "3v-s8": str(SEEDS / "d3_seed8_policy.pt"),
     "3v-mean578-distilled": str(ROOT / "runs" / "offline" / "d3-mean578" / "policy.pt"),
+    # ... the students' teacher without its lookahead (true obstacle poses, acting reactively;
+    # renders nothing): does a reactive policy that sees the poses exactly fail the same tasks?
+    "teacher-reactive": str(ROOT / "results" / "stage2" / "distill" / "teacher" / "policy.pt"),
     # ... and the regressions of seeds 7 and 8 before their continuation, against the same
     # regressions with the states near their target drawn three times as often.
     **{
