@@ -48,16 +48,6 @@ MEMBERS = {
 }
 MEAN = "mean"
 SEEDS = HERE / "seeds"
-MEANS = {
-    MEAN: tuple(MEMBERS.values()),
-    # Session 27: the three seeds of the shipped 3-view recipe (seed 5 is `residual-3views`).
-    "3v-mean578": (
-        str(HERE / "3v-dagger+2_policy.pt"),
-        str(SEEDS / "d3_seed7_policy.pt"),
-        str(SEEDS / "d3_seed8_policy.pt"),
-    ),
-}
-"""Mean-action policies: each name's members act on the same observation, their mean is taken."""
 GUARDED = {"3v-s5+shield": ("3v-s5", False), "3v-s5+hybrid": ("3v-s5", True)}
 """Session 27: the shipped 3-view student through the hybrid's depth shield (`HYBRID[3]`),
 without or with its planner (which tasks the safety layer turns into successes)."""
@@ -113,6 +103,13 @@ STUDENTS = {
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
 and on seed 1's data alone with the teacher's labels (is it the pooling, or the regression?)."""
+MEANS = {
+    MEAN: tuple(MEMBERS),
+    # Session 27: the three seeds of the shipped 3-view recipe (seed 5 is `residual-3views`).
+    "3v-mean578": ("3v-s5", "3v-s7", "3v-s8"),
+}
+"""Mean-action policies (by the names of their members, each in MEMBERS or STUDENTS): the
+members act on the same observation, their mean is taken."""
 FAMILIES = ("blocked", "obstacles")
 COMPARED = {
     **{member: (MEAN,) for member in MEMBERS},
@@ -177,7 +174,7 @@ def load(name: str):
     if name not in MEANS:
         policy, _, kwargs = load_policy({**MEMBERS, **STUDENTS}[name])
         return policy, kwargs
-    loaded = [load_policy(path) for path in MEANS[name]]
+    loaded = [load_policy({**MEMBERS, **STUDENTS}[member]) for member in MEANS[name]]
     kwargs = loaded[0][2]
     if any(other[2] != kwargs for other in loaded[1:]):
         raise SystemExit("the members observe with different env options")

@@ -22,32 +22,33 @@ import numpy as np
 from scipy.stats import mannwhitneyu
 
 from clamgen.envs import ReachEnv
+from clamgen.experiments.distill import target_clearance_m
 
 HERE = Path(__file__).resolve().parent
 SEEDS = ("3v-s5", "3v-s7", "3v-s8")
 
 
-def surface_distance(point: np.ndarray, obstacles: np.ndarray) -> float:
-    """Distance (m) from a point to the nearest obstacle, each taken as its axis-aligned box
-    (`Obstacles.as_array`: kind one-hot, centre, half sizes); 0 inside one."""
-    centres, halves = obstacles[:, 2:5], obstacles[:, 5:8]
-    outside = np.maximum(np.abs(point - centres) - halves, 0.0)
-    return float(np.linalg.norm(outside, axis=1).min())
+def _clearance(point: np.ndarray, obstacles: np.ndarray) -> float:
+    return float(target_clearance_m(point[None], obstacles[None])[0])
 
 
-def geometry(seed: int) -> dict[str, float]:
+def geometry(seeds: list[int]) -> dict[int, dict[str, float]]:
+    """Each blocked task's geometry, from one env reset per task (nothing rendered)."""
     env = ReachEnv(num_obstacles=2, task_family="blocked", include_obstacle_state=True)
-    obs, _ = env.reset(seed=seed)
+    out = {}
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
+        obstacles, tip, goal = obs["obstacles"], obs["achieved_goal"], obs["desired_goal"]
+        out[seed] = {
+            "target to obstacle (m)": _clearance(goal, obstacles),
+            "start tip to obstacle (m)": _clearance(tip, obstacles),
+            "smallest half size (m)": float(obstacles[:, 5:8].min()),
+            "start tip to target (m)": float(np.linalg.norm(goal - tip)),
+            "target to base, horizontal (m)": float(np.linalg.norm(goal[:2])),
+            "target height (m)": float(goal[2]),
+        }
     env.close()
-    obstacles, tip, goal = obs["obstacles"], obs["achieved_goal"], obs["desired_goal"]
-    return {
-        "target to obstacle (m)": surface_distance(goal, obstacles),
-        "start tip to obstacle (m)": surface_distance(tip, obstacles),
-        "smallest half size (m)": float(obstacles[:, 5:8].min()),
-        "start tip to target (m)": float(np.linalg.norm(goal - tip)),
-        "target to base, horizontal (m)": float(np.linalg.norm(goal[:2])),
-        "target height (m)": float(goal[2]),
-    }
+    return out
 
 
 def main() -> None:
@@ -57,10 +58,11 @@ def main() -> None:
     args = parser.parse_args()
     lines = [json.loads(line) for line in args.block.read_text().splitlines() if line]
     by = {x["policy"]: x for x in lines if x["family"] == "blocked"}
-    if all(name in by for name in SEEDS):
-        compare_geometry(by)
     seeds = next(iter(by.values()))["seeds"]
-    near = np.array([geometry(int(s))["target to obstacle (m)"] < args.near_m for s in seeds])
+    tasks = geometry(seeds)
+    if all(name in by for name in SEEDS):
+        compare_geometry(by, tasks)
+    near = np.array([tasks[s]["target to obstacle (m)"] < args.near_m for s in seeds])
     print(f"{near.sum()} of {len(seeds)} blocked tasks have their target within {args.near_m} m")
     for name, line in by.items():
         if line["seeds"] == seeds:
@@ -68,12 +70,12 @@ def main() -> None:
             print(f"{name:24s} near {won[near].mean():.3f}, the others {won[~near].mean():.3f}")
 
 
-def compare_geometry(by: dict[str, dict]) -> None:
+def compare_geometry(by: dict[str, dict], tasks: dict[int, dict[str, float]]) -> None:
     """The geometry of the tasks every one of SEEDS fails against those they all solve."""
     success = np.array([by[name]["success"] for name in SEEDS])
     seeds = np.array(by[SEEDS[0]]["seeds"])
     groups = {"all fail": seeds[~success.any(0)], "all solve": seeds[success.all(0)]}
-    features = {name: [geometry(int(s)) for s in group] for name, group in groups.items()}
+    features = {name: [tasks[int(s)] for s in group] for name, group in groups.items()}
     print(", ".join(f"{name}: {len(group)} tasks" for name, group in groups.items()))
     for key in features["all fail"][0]:
         values = {name: np.array([f[key] for f in rows]) for name, rows in features.items()}

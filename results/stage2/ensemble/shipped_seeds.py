@@ -64,6 +64,12 @@ SHIPPED_ROWS = {
 """The shipped students' own test rows (seed 5), alone, shielded and in their hybrids."""
 STEMS = {"alone": "student", "shielded": "shielded", "hybrid": "hybrid"}
 """A seed's row file stem by kind (`seeds/<stem><V>_seed<S>.json`)."""
+NAME_ENDINGS = {
+    "alone": ", alone",
+    "shielded": " + the hybrid's depth shield, no planner",
+    "hybrid": " + the hybrid's depth shield and planner",
+}
+"""How a seed's row name ends, by kind."""
 
 
 def run_dir(views: int, seed: int) -> Path:
@@ -72,14 +78,7 @@ def run_dir(views: int, seed: int) -> Path:
 
 def _name(views: int, kind: str) -> str:
     student = f"CLAMGen, {WORDS[views]}, student of the shipped `{SHIPPED[views]}` recipe (ours)"
-    return (
-        student
-        + {
-            "alone": ", alone",
-            "shielded": " + the hybrid's depth shield, no planner",
-            "hybrid": " + the hybrid's depth shield and planner",
-        }[kind]
-    )
+    return student + NAME_ENDINGS[kind]
 
 
 def _flags(views: int, kind: str) -> list[str]:
