@@ -7,7 +7,7 @@ solve: how close the target and the start tip are to the nearest obstacle surfac
 small the obstacles are, and how far the target is from the arm's base. Per group it prints
 the median and quartiles and the Mann-Whitney U test's P (two-sided). Then, for every policy
 on the block, its blocked success on the tasks whose target lies within `--near-m` of an
-obstacle and on the others. Chooses nothing.
+obstacle and on the others, with Wilson 95% intervals. Chooses nothing.
 
     python results/stage2/ensemble/shared_failures.py [--block ensemble_170000.jsonl]
 """
@@ -23,9 +23,15 @@ from scipy.stats import mannwhitneyu
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.distill import target_clearance_m
+from clamgen.experiments.tables import wilson_interval
 
 HERE = Path(__file__).resolve().parent
 SEEDS = ("3v-s5", "3v-s7", "3v-s8")
+
+
+def _rate(success: np.ndarray) -> str:
+    low, high = wilson_interval(int(success.sum()), len(success))
+    return f"{success.mean():.3f} ({low:.3f}-{high:.3f})"
 
 
 def _clearance(point: np.ndarray, obstacles: np.ndarray) -> float:
@@ -67,7 +73,7 @@ def main() -> None:
     for name, line in by.items():
         if line["seeds"] == seeds:
             won = np.array(line["success"])
-            print(f"{name:24s} near {won[near].mean():.3f}, the others {won[~near].mean():.3f}")
+            print(f"{name:24s} near {_rate(won[near])}, the others {_rate(won[~near])}")
 
 
 def compare_geometry(by: dict[str, dict], tasks: dict[int, dict[str, float]]) -> None:
