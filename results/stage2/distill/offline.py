@@ -46,8 +46,9 @@ from clamgen.experiments.distill import (
     Distiller,
     DistillSettings,
 )
-from clamgen.experiments.pooled import load_pooled
+from clamgen.experiments.pooled import file_lengths, load_pooled, subset
 from clamgen.experiments.stage2 import Stage2Config
+from clamgen.experiments.stall import pool_stall_counts
 from clamgen.experiments.train import POLICY_NAME
 
 RELABEL_BATCH = 256
@@ -129,6 +130,21 @@ def main() -> None:
         help="a student that sees fewer views than the run's (its first N cameras)",
     )
     parser.add_argument(
+        "--data-views",
+        type=int,
+        default=None,
+        help="views the pooled data keeps (default: the student's); a privileged student, "
+        "which reads none, on a vision pool's --pool-cache passes that cache's count",
+    )
+    parser.add_argument(
+        "--stalled-only",
+        type=int,
+        default=None,
+        metavar="K",
+        help="regress on the states whose episode's tip has not come nearer its target for K "
+        "steps or more only (an escape student, clamgen.experiments.stall)",
+    )
+    parser.add_argument(
         "--relabel",
         nargs="*",
         default=[],
@@ -182,7 +198,7 @@ def main() -> None:
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
     distiller = Distiller(DistillConfig(student=student, distill=settings))
-    views = student.env.num_views
+    views = student.env.num_views if args.data_views is None else args.data_views
     relabellers = []
     if args.relabel:
         from clamgen.experiments.policies import load_policy
@@ -195,6 +211,17 @@ def main() -> None:
         distiller.data.arrays = load_pooled(sources, views, relabel, args.pool_cache)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(str(error)) from None
+    if args.stalled_only is not None:
+        arrays = distiller.data.arrays
+        counts = pool_stall_counts(
+            arrays["achieved_goal"],
+            arrays["desired_goal"],
+            arrays["obstacles"],
+            file_lengths(sources),
+        )
+        stalled = np.flatnonzero(counts >= args.stalled_only)
+        print(f"{len(stalled)} of {len(counts)} states stalled {args.stalled_only} steps or more")
+        distiller.data.arrays = subset(arrays, stalled)
     if args.torch_threads:
         torch.set_num_threads(args.torch_threads)
     job = {
@@ -203,6 +230,7 @@ def main() -> None:
         "sources": [[str(run), iterations] for run, iterations in sources],
         "relabel": [str(name) for name in args.relabel],
         "updates": args.updates,
+        **({"stalled_only": args.stalled_only} if args.stalled_only is not None else {}),
     }
     loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
@@ -234,6 +262,7 @@ def main() -> None:
         "pool": [str(run) for run in args.pool],
         "relabel": [str(name) for name in args.relabel],
         "samples": len(distiller.data),
+        "stalled_only": args.stalled_only,
         "changes": changes,
         "updates": args.updates,
         "torch_threads": args.torch_threads or student.loop.torch_threads,

@@ -51,6 +51,9 @@ SEEDS = HERE / "seeds"
 GUARDED = {"3v-s5+shield": ("3v-s5", False), "3v-s5+hybrid": ("3v-s5", True)}
 """Session 27: the shipped 3-view student through the hybrid's depth shield (`HYBRID[3]`),
 without or with its planner (which tasks the safety layer turns into successes)."""
+SWITCHED = {f"3v-s{seed}+escape": (f"3v-s{seed}", "3v-escape10") for seed in (5, 7, 8)}
+"""Session 28: each 3-view seed acting, the escape student instead once the episode has
+stalled 10 steps (`clamgen.experiments.stall.StallSwitch`)."""
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
@@ -99,6 +102,13 @@ STUDENTS = {
         for seed in (7, 8)
         for kind, stem in (("reg", "d3-pool4-48k"), ("near3", "d3-near3"))
     },
+    # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
+    # keypoints, nothing rendered) regressed on the same four-run pool as the 3-view seeds:
+    # are the near-target tasks lost to what the cameras show, or to acting without lookahead?
+    "priv-pool4": str(ROOT / "runs" / "offline" / "priv-pool4" / "policy.pt"),
+    # ... and an escape student: regressed on the pool's stalled states only (the tip not
+    # nearer its target for 10 steps or more), to act where the seeds stall (`SWITCHED`).
+    "3v-escape10": str(ROOT / "runs" / "offline" / "d3-escape10" / "policy.pt"),
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -133,6 +143,7 @@ COMPARED = {
     "3v-mean578-distilled": ("3v-mean578", "3v-s5", "3v-s7", "3v-s8"),
     "3v-s5+shield": ("3v-s5",),
     "3v-s5+hybrid": ("3v-s5", "3v-s5+shield"),
+    **{name: (policy,) for name, (policy, _) in SWITCHED.items()},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
@@ -171,6 +182,13 @@ def load(name: str):
         return guard.wrap(
             policy, kwargs["num_views"], kwargs["image_size"]
         ), kwargs | guard.env_kwargs()
+    if name in SWITCHED:
+        from clamgen.experiments.stall import StallSwitch
+
+        (policy, kwargs), (escape, escape_kwargs) = (load(part) for part in SWITCHED[name])
+        if escape_kwargs != kwargs:
+            raise SystemExit("the policy and its escape observe with different env options")
+        return StallSwitch(policy, escape), kwargs
     if name not in MEANS:
         policy, _, kwargs = load_policy({**MEMBERS, **STUDENTS}[name])
         return policy, kwargs
@@ -212,7 +230,7 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED):
+        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED):
             line = by.get((name, family))
             if line is None:
                 continue
@@ -239,7 +257,7 @@ def main() -> None:
     parser.add_argument(
         "--policies",
         nargs="+",
-        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED],
+        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED],
         default=[*MEMBERS, MEAN],
     )
     parser.add_argument(

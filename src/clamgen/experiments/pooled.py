@@ -101,6 +101,41 @@ def load_pooled(
     return arrays
 
 
+def file_lengths(sources: list[tuple[Path, int | None]]) -> list[int]:
+    """The rows of each data file of `sources` (as `load_pooled`), in pool order."""
+    lengths = []
+    for path in (path for _, paths in _files(sources) for path in paths):
+        with np.load(path, allow_pickle=False) as data:
+            lengths.append(len(data["label"]))
+    return lengths
+
+
+class Rows:
+    """The rows `index` of an array (memory-mapped or not) without copying them: indexing
+    picks from the array's own rows (`subset`)."""
+
+    def __init__(self, array: np.ndarray, index: np.ndarray) -> None:
+        self.array = array
+        self.index = np.asarray(index, np.int64)
+        self.shape = (len(self.index), *array.shape[1:])
+        self.dtype = array.dtype
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, item) -> np.ndarray:
+        return self.array[self.index[item]]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = self.array[self.index]
+        return out if dtype is None else out.astype(dtype)
+
+
+def subset(arrays: dict[str, np.ndarray], index: np.ndarray) -> dict[str, Rows]:
+    """The pool's rows `index`, every key alike, without copying the images."""
+    return {key: Rows(value, index) for key, value in arrays.items()}
+
+
 def _relabelled(arrays: dict[str, np.ndarray], relabel: Relabel) -> np.ndarray:
     labels = np.empty(arrays["label"].shape, arrays["label"].dtype)
     for start in range(0, len(labels), RELABEL_CHUNK):

@@ -1,0 +1,123 @@
+"""Stalls: steps since the tip last came nearer its target, and a policy that switches on them
+(beyond the paper).
+
+A distilled vision student that fails a blocked-path task without a collision has mostly
+stalled: it came within a few centimetres of the target and then hovered there, commanding
+small steps, until the time limit. From those very states the students' teacher (the
+lookahead in the simulator) arrives on nearly every one, with a saturated joint command that
+takes the arm around whatever holds it (`results/stage2/ensemble/README.md`). A student cannot
+tell such a state from one on a free approach that looks the same to its cameras, but the
+episode can: the tip has not come nearer for many steps.
+
+`stall_counts` counts, for each state of one episode, the steps since the tip last came
+`PROGRESS_M` nearer the target than ever before in the episode; `StallCounter` counts the same
+online. `StallSwitch` acts with one policy and hands over to another (an *escape* student,
+regressed on the stalled states of the distillation data only) while the count is at least
+`after_steps`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+PROGRESS_M = 0.005
+"""A step makes progress when the tip is this much nearer the target than it has been before in
+the episode (a quarter of the 2 cm success radius)."""
+AFTER_STEPS = 10
+"""Default count at which `StallSwitch` hands over: an episode that arrives takes about 20
+steps, nearly all of them nearer than the last."""
+
+
+def tip_distance(obs: dict[str, np.ndarray]) -> float:
+    return float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - obs["desired_goal"]))
+
+
+def stall_counts(distances: np.ndarray) -> np.ndarray:
+    """(T,) for each step of one episode (the tip's distances to the target, in order), the
+    steps since the last one that made progress (`PROGRESS_M`); the first state counts 0."""
+    counts = np.empty(len(distances), np.int64)
+    best, last = np.inf, 0
+    for t, distance in enumerate(np.asarray(distances, np.float64)):
+        if distance < best - PROGRESS_M:
+            best, last = distance, t
+        counts[t] = t - last
+    return counts
+
+
+class StallCounter:
+    """`stall_counts` online: `update(obs)` at each observation of an episode, `reset()` at its
+    start."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self._best, self._last, self._t = np.inf, 0, -1
+
+    def update(self, obs: dict[str, np.ndarray]) -> int:
+        self._t += 1
+        distance = tip_distance(obs)
+        if distance < self._best - PROGRESS_M:
+            self._best, self._last = distance, self._t
+        return self._t - self._last
+
+
+def pool_episodes(obstacles: np.ndarray, file_lengths: list[int]) -> np.ndarray:
+    """(N,) an episode number for each row of pooled distillation data. A collection writes the
+    states of its parallel episodes interleaved, each episode's in step order, and every task of
+    a run has its own seed: within one data file, the rows with the same obstacles are one
+    episode. `file_lengths`: the rows of each data file, in pool order."""
+    if sum(file_lengths) != len(obstacles):
+        raise ValueError(f"files hold {sum(file_lengths)} rows, the pool {len(obstacles)}")
+    flat = np.ascontiguousarray(obstacles).reshape(len(obstacles), -1)
+    files = np.repeat(np.arange(len(file_lengths), dtype=np.int64), file_lengths)
+    keys = np.concatenate([flat.view(np.uint8), files[:, None].view(np.uint8)], axis=1)
+    _, episode = np.unique(keys, axis=0, return_inverse=True)
+    return episode.reshape(-1)
+
+
+def pool_stall_counts(
+    achieved: np.ndarray, desired: np.ndarray, obstacles: np.ndarray, file_lengths: list[int]
+) -> np.ndarray:
+    """(N,) `stall_counts` of every row of pooled distillation data (`pool_episodes`)."""
+    distances = np.linalg.norm(np.asarray(achieved) - np.asarray(desired), axis=1)
+    episode = pool_episodes(obstacles, file_lengths)
+    order = np.argsort(episode, kind="stable")  # each episode's rows, in step order
+    bounds = np.flatnonzero(np.diff(episode[order])) + 1
+    counts = np.empty(len(distances), np.int64)
+    for rows in np.split(order, bounds):
+        counts[rows] = stall_counts(distances[rows])
+    return counts
+
+
+class StallSwitch:
+    """`policy` acting, `escape` instead while the stall count (`StallCounter`) is at least
+    `after_steps` (a `Policy`). Counts `num_escape_steps` of `num_steps`."""
+
+    def __init__(self, policy, escape, after_steps: int = AFTER_STEPS) -> None:
+        if after_steps < 1:
+            raise ValueError(f"after_steps must be >= 1, got {after_steps}")
+        self.policy = policy
+        self.escape = escape
+        self.after_steps = after_steps
+        self.counter = StallCounter()
+        self.num_steps = 0
+        self.num_escape_steps = 0
+
+    @property
+    def agent(self):
+        return getattr(self.policy, "agent", None)
+
+    def reset(self, env: Any | None = None) -> None:
+        self.counter.reset()
+        self.policy.reset(env)
+        self.escape.reset(env)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self.num_steps += 1
+        if self.counter.update(obs) >= self.after_steps:
+            self.num_escape_steps += 1
+            return self.escape.act(obs)
+        return self.policy.act(obs)

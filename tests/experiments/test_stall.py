@@ -1,0 +1,107 @@
+"""Stall counts (offline over pooled data, online in an episode) and the stall switch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.pooled import file_lengths, subset
+from clamgen.experiments.stall import (
+    PROGRESS_M,
+    StallCounter,
+    StallSwitch,
+    pool_episodes,
+    pool_stall_counts,
+    stall_counts,
+)
+
+
+def _obs(distance: float) -> dict[str, np.ndarray]:
+    return {"achieved_goal": np.array([distance, 0.0, 0.0]), "desired_goal": np.zeros(3)}
+
+
+def test_stall_counts_restart_at_progress_only():
+    # 0.30 -> 0.20 progress; 0.198 is nearer but by less than PROGRESS_M; 0.25 is farther;
+    # 0.19 is PROGRESS_M + nearer than the best (0.20): progress again.
+    distances = np.array([0.30, 0.20, 0.198, 0.25, 0.20 - PROGRESS_M - 1e-4, 0.19])
+    assert stall_counts(distances).tolist() == [0, 0, 1, 2, 0, 1]
+
+
+def test_online_counter_matches_the_offline_counts():
+    rng = np.random.default_rng(0)
+    distances = np.abs(0.3 - np.cumsum(rng.normal(0.004, 0.01, 80)))
+    counter = StallCounter()
+    online = [counter.update(_obs(d)) for d in distances]
+    assert online == stall_counts(distances).tolist()
+    counter.reset()
+    assert counter.update(_obs(1.0)) == 0
+
+
+def test_pool_counts_follow_interleaved_episodes_within_each_file():
+    rng = np.random.default_rng(1)
+    # Two files; in each, two episodes whose rows interleave (as parallel collection writes
+    # them). The second file reuses the first file's first task (another run, same seed).
+    tasks = rng.normal(size=(3, 2, 8))
+    episodes = [
+        (0, tasks[0], np.array([0.3, 0.3, 0.3, 0.3])),
+        (0, tasks[1], np.array([0.4, 0.3, 0.2])),
+        (1, tasks[0], np.array([0.5, 0.4, 0.4, 0.4, 0.1])),
+    ]
+    rows = []  # (file, obstacles, distance, counts expected)
+    for file in (0, 1):
+        mine = [e for e in episodes if e[0] == file]
+        steps = max(len(e[2]) for e in mine)
+        for t in range(steps):
+            for _, obstacles, distances in mine:
+                if t < len(distances):
+                    rows.append((file, obstacles, distances[t], int(stall_counts(distances)[t])))
+    lengths = [sum(r[0] == f for r in rows) for f in (0, 1)]
+    obstacles = np.stack([r[1] for r in rows]).astype(np.float32)
+    desired = np.zeros((len(rows), 3), np.float32)
+    achieved = desired.copy()
+    achieved[:, 0] = [r[2] for r in rows]
+    episode = pool_episodes(obstacles, lengths)
+    assert len(np.unique(episode)) == 3
+    counts = pool_stall_counts(achieved, desired, obstacles, lengths)
+    assert counts.tolist() == [r[3] for r in rows]
+    with pytest.raises(ValueError, match="rows"):
+        pool_episodes(obstacles, [1, 2])
+
+
+def test_subset_picks_rows_without_copying(tmp_path):
+    array = np.arange(40, dtype=np.float32).reshape(10, 4)
+    rows = subset({"x": array}, np.array([7, 2, 5]))["x"]
+    assert len(rows) == 3 and rows.shape == (3, 4)
+    np.testing.assert_array_equal(rows[np.array([2, 0])], array[[5, 7]])
+    np.testing.assert_array_equal(np.asarray(rows), array[[7, 2, 5]])
+    for i, n in enumerate((4, 6)):
+        chunk = {"label": np.zeros((n, 6), np.float32)}
+        ckpt.save_npz(tmp_path / "run" / "data" / f"iteration{i}.npz", chunk)
+    assert file_lengths([(tmp_path / "run", None)]) == [4, 6]
+
+
+class _Constant:
+    def __init__(self, value: float) -> None:
+        self.value, self.resets = value, 0
+
+    def reset(self, env=None) -> None:
+        self.resets += 1
+
+    def act(self, obs) -> np.ndarray:
+        return np.full(6, self.value)
+
+
+def test_switch_hands_over_while_stalled_and_back_on_progress():
+    policy, escape = _Constant(0.1), _Constant(-0.9)
+    switch = StallSwitch(policy, escape, after_steps=2)
+    switch.reset()
+    assert policy.resets == escape.resets == 1
+    distances = [0.3, 0.3, 0.3, 0.3, 0.2, 0.2]  # counts 0 1 2 3 0 1
+    acted = [switch.act(_obs(d))[0] for d in distances]
+    assert acted == [0.1, 0.1, -0.9, -0.9, 0.1, 0.1]
+    assert (switch.num_steps, switch.num_escape_steps) == (6, 2)
+    switch.reset()  # a new episode starts counting afresh
+    assert switch.act(_obs(0.3))[0] == 0.1
+    with pytest.raises(ValueError, match="after_steps"):
+        StallSwitch(policy, escape, after_steps=0)
