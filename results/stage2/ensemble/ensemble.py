@@ -54,6 +54,13 @@ without or with its planner (which tasks the safety layer turns into successes).
 SWITCHED = {f"3v-s{seed}+escape": (f"3v-s{seed}", "3v-escape10") for seed in (5, 7, 8)}
 """Session 28: each 3-view seed acting, the escape student instead once the episode has
 stalled 10 steps (`clamgen.experiments.stall.StallSwitch`)."""
+CROP_OFFSETS = ((4, 4), (0, 0), (0, 8), (8, 0), (8, 8))
+"""Session 28: the centre crop the students act on and the four corner crops of their training's
+random crops (64-pixel views, 56-pixel crops), every view alike."""
+CROPPED = {f"3v-s{seed}+crops": f"3v-s{seed}" for seed in (5, 7, 8)}
+"""Each 3-view seed acting with the mean of its pre-squash means over `CROP_OFFSETS`."""
+
+
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
@@ -144,6 +151,7 @@ COMPARED = {
     "3v-s5+shield": ("3v-s5",),
     "3v-s5+hybrid": ("3v-s5", "3v-s5+shield"),
     **{name: (policy,) for name, (policy, _) in SWITCHED.items()},
+    **{name: (policy,) for name, policy in CROPPED.items()},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
@@ -164,6 +172,30 @@ class MeanActionPolicy:
         return np.mean([member.act(obs) for member in self.members], axis=0)
 
 
+class CropMeanPolicy:
+    """A student's mean action over fixed crops of its views (test-time augmentation with the
+    training's crops): the tanh of the mean of its pre-squash means, all crops in one batch."""
+
+    def __init__(self, agent, offsets=CROP_OFFSETS) -> None:
+        self.agent = agent
+        self.offsets = offsets
+
+    def reset(self, env=None) -> None:
+        pass
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        import torch
+
+        size = self.agent.config.encoder.image_size
+        images = np.asarray(obs["images"])
+        batch = {k: np.repeat(np.asarray(v)[None], len(self.offsets), 0) for k, v in obs.items()}
+        batch["images"] = np.stack(
+            [images[..., top : top + size, left : left + size] for top, left in self.offsets]
+        )
+        with torch.inference_mode():
+            return np.tanh(self.agent.mean_action(batch).mean(0))
+
+
 def done(out: Path = OUT) -> list[dict]:
     if not out.exists():
         return []
@@ -182,6 +214,9 @@ def load(name: str):
         return guard.wrap(
             policy, kwargs["num_views"], kwargs["image_size"]
         ), kwargs | guard.env_kwargs()
+    if name in CROPPED:
+        policy, kwargs = load(CROPPED[name])
+        return CropMeanPolicy(policy.agent), kwargs
     if name in SWITCHED:
         from clamgen.experiments.stall import StallSwitch
 
@@ -230,7 +265,7 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED):
+        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED):
             line = by.get((name, family))
             if line is None:
                 continue
@@ -257,7 +292,7 @@ def main() -> None:
     parser.add_argument(
         "--policies",
         nargs="+",
-        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED],
+        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED],
         default=[*MEMBERS, MEAN],
     )
     parser.add_argument(
