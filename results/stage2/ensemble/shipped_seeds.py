@@ -19,7 +19,9 @@ student (`<V>v-dagger+2_test.json`, `../../table2/shielded_fine_residual-*.json`
 `../../table2/hybrid_residual-*.json`). The 2- and 1-view seeds' policy files went with a
 lost machine's `runs/`, so their shield rows have the shipped seed only. Prints, per number
 of views and task family, the mean success and collision rate over seeds with rliable's 95%
-stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt.
+stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt; then the
+blocked-path issue's aims against the means over seeds (`aims_table`), written to aims.md
+(the README's Status quotes it; a test keeps the two the same).
 
     python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1] [--seeds 7 8]
     python results/stage2/ensemble/shipped_seeds.py --summarize-only
@@ -29,11 +31,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import shlex
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from clamgen.experiments.aggregate import row_scores, seed_lines
 from clamgen.experiments.depth_planner import HYBRID
@@ -70,6 +75,18 @@ NAME_ENDINGS = {
     "hybrid": " + the hybrid's depth shield and planner",
 }
 """How a seed's row name ends, by kind."""
+
+
+BLOCKED_AIMS = {3: 0.90, 2: 0.85, 1: 0.70}
+"""The issue's blocked-path success aims by number of views (at least)."""
+STANDARD_AIM = 0.95  # standard obstacle tasks' success, at least
+COLLISION_AIM = 0.05  # blocked-path collision rate, at most
+ACT_AIM_MS = 2.0  # median act time per step on one core, under
+KIND_WORDS = {
+    "alone": "the policy alone",
+    "shielded": "+ depth shield (128-pixel depth cameras)",
+    "hybrid": "+ depth shield and planner when stuck (the hybrid)",
+}
 
 
 def run_dir(views: int, seed: int) -> Path:
@@ -112,6 +129,49 @@ def _evaluate(views: int, seed: int) -> None:
         subprocess.run(command, check=True, cwd=ROOT)
 
 
+def _rows(views: int, kind: str) -> list[tuple[int, Path]]:
+    """(seed, row JSON) of every evaluated seed of a kind, the shipped seed first."""
+    found = [(SHIPPED_SEED, SHIPPED_ROWS[views, kind])]
+    for seed in SEEDS[views]:
+        path = _out(views, seed, kind).with_suffix(".json")
+        if path.is_file():
+            found.append((seed, path))
+    return found
+
+
+def _mark(value: float, met: bool, digits: int = 3) -> str:
+    return f"{value:.{digits}f} {'met' if met else '**missed**'}"
+
+
+def aims_table() -> str:
+    """Markdown: per number of views and way of acting, the means over seeds of the test rows'
+    blocked and standard success and blocked collision rate, and the median over seeds of the
+    rows' median act time (blocked tasks), each against the issue's aim."""
+    lines = [
+        "| views | acting | seeds | blocked success (aim) | standard success (aim 0.95) "
+        "| blocked collisions (aim at most 0.05) | act, ms median (aim under 2) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for views in sorted(SEEDS, reverse=True):
+        aim = BLOCKED_AIMS[views]
+        for kind in KINDS:
+            found = _rows(views, kind)
+            rows = [json.loads(path.read_text())["rows"] for _, path in found]
+            by = [{row["family"]: row for row in seed_rows} for seed_rows in rows]
+            blocked = float(np.mean([b["blocked"]["success_rate"] for b in by]))
+            standard = float(np.mean([b["obstacles"]["success_rate"] for b in by]))
+            collisions = float(np.mean([b["blocked"]["collision_rate"] for b in by]))
+            act = float(np.median([b["blocked"]["median_act_ms"] for b in by]))
+            lines.append(
+                f"| {views} | {KIND_WORDS[kind]} | {len(found)} "
+                f"| {_mark(blocked, blocked >= aim)} ({aim:.2f}) "
+                f"| {_mark(standard, standard >= STANDARD_AIM)} "
+                f"| {_mark(collisions, collisions <= COLLISION_AIM)} "
+                f"| {_mark(act, act < ACT_AIM_MS, 2)} |"
+            )
+    return "\n".join(lines)
+
+
 def summarize(views: int) -> str:
     lines = []
     for kind in KINDS:
@@ -144,6 +204,9 @@ def main() -> None:
     text = "\n".join(summarize(views) for views in sorted(SEEDS, reverse=True))
     print(text)
     (HERE / "shipped_seeds.txt").write_text(text + "\n")
+    aims = aims_table()
+    print(aims)
+    (HERE / "aims.md").write_text(aims + "\n")
 
 
 if __name__ == "__main__":
