@@ -5,15 +5,18 @@ A distilled vision student that fails a blocked-path task without a collision ha
 stalled: it came within a few centimetres of the target and then hovered there, commanding
 small steps, until the time limit. From those very states the students' teacher (the
 lookahead in the simulator) arrives on nearly every one, with a saturated joint command that
-takes the arm around whatever holds it (`results/stage2/ensemble/README.md`). A student cannot
-tell such a state from one on a free approach that looks the same to its cameras, but the
-episode can: the tip has not come nearer for many steps.
+takes the arm around whatever holds it (`results/stage2/ensemble/README.md`). Whether a state
+is such a stall is plain from the episode, not from one image: the tip has not come nearer for
+many steps.
 
 `stall_counts` counts, for each state of one episode, the steps since the tip last came
 `PROGRESS_M` nearer the target than ever before in the episode; `StallCounter` counts the same
-online. `StallSwitch` acts with one policy and hands over to another (an *escape* student,
-regressed on the stalled states of the distillation data only) while the count is at least
-`after_steps`.
+online; `pool_stall_counts` over pooled distillation data (whose parallel episodes are
+interleaved). `StallSwitch` acts with one policy and hands over to another (e.g. an *escape*
+student, regressed on the stalled states of the distillation data only: `offline.py
+--stalled-only`) while the count is at least `after_steps`. Measured for the 3-view students
+(session 28), such a switch did not help: the escape student, like the students themselves,
+fits the way out of the stalls in its data but does not carry it to new tasks' stalls.
 """
 
 from __future__ import annotations
