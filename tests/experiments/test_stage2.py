@@ -11,7 +11,12 @@ from clamgen.agents.aux_losses import AuxLossConfig
 from clamgen.agents.encoders import EncoderConfig
 from clamgen.agents.residual import ResidualConfig
 from clamgen.experiments.config import EnvConfig, LoopConfig, load_preset
-from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer, load_residual_agent
+from clamgen.experiments.stage2 import (
+    Stage2Config,
+    Stage2Trainer,
+    load_residual_agent,
+    residual_stage,
+)
 from clamgen.experiments.train import POLICY_NAME, Trainer
 from clamgen.replay import ReplayConfig
 from clamgen.schedules import LinearRamp
@@ -225,3 +230,16 @@ def test_shipped_vision_policies_load_by_name_and_act_from_their_views(name, vie
     action = policy.act(obs)
     env.close()
     assert action.shape == (6,) and np.all(np.abs(action) <= 1)
+
+
+def test_zoomed_views_count_twice_in_the_encoder(tmp_path, base_policy):
+    config = image_config(tmp_path, base_policy)
+    env = dataclasses.replace(config.env, zoom_views=True)
+    with pytest.raises(ValueError, match="x 2 with env"):
+        dataclasses.replace(config, env=env)
+    encoder = dataclasses.replace(config.agent.encoder, num_views=4)
+    agent = dataclasses.replace(config.agent, encoder=encoder)
+    zoomed = dataclasses.replace(config, env=env, agent=agent)  # 2 views + 2 zoomed
+    assert zoomed.agent.encoder.num_views == 4
+    with pytest.raises(ValueError, match="image_her re-renders the views only"):
+        residual_stage(zoomed).make_rerender()

@@ -46,7 +46,7 @@ from clamgen.experiments.distill import (
     Distiller,
     DistillSettings,
 )
-from clamgen.experiments.pooled import file_lengths, load_pooled, subset
+from clamgen.experiments.pooled import JoinedViews, Rows, file_lengths, load_pooled, subset
 from clamgen.experiments.stage2 import Stage2Config
 from clamgen.experiments.stall import pool_stall_counts
 from clamgen.experiments.train import POLICY_NAME
@@ -137,6 +137,20 @@ def main() -> None:
         "which reads none, on a vision pool's --pool-cache passes that cache's count",
     )
     parser.add_argument(
+        "--zoom",
+        action="store_true",
+        help="a student that also sees each view's zoomed view (env.zoom_views, beyond the "
+        "paper): regresses on the --pool-cache states whose zoomed views zoom_pool.py rendered",
+    )
+    parser.add_argument(
+        "--rows",
+        type=int,
+        default=None,
+        metavar="N",
+        help="regress on the pool's first N states only (with --zoom: those zoom_pool.py "
+        "rendered, by default)",
+    )
+    parser.add_argument(
         "--stalled-only",
         type=int,
         default=None,
@@ -186,6 +200,12 @@ def main() -> None:
         encoder = dataclasses.replace(student.agent.encoder, num_views=args.num_views)
         agent_changes["encoder"] = encoder
         env = dataclasses.replace(env, num_views=args.num_views)
+    if args.zoom:
+        if args.pool_cache is None:
+            raise SystemExit("--zoom reads the zoomed views beside a --pool-cache")
+        encoder = agent_changes.get("encoder", student.agent.encoder)
+        agent_changes["encoder"] = dataclasses.replace(encoder, num_views=2 * encoder.num_views)
+        env = dataclasses.replace(env, zoom_views=True)
     if agent_changes:
         agent = dataclasses.replace(student.agent, **agent_changes)
         student = dataclasses.replace(student, agent=agent, env=env)
@@ -211,6 +231,22 @@ def main() -> None:
         distiller.data.arrays = load_pooled(sources, views, relabel, args.pool_cache)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(str(error)) from None
+    rows = args.rows
+    if rows is not None and args.stalled_only is not None:
+        raise SystemExit("--stalled-only counts stalls over the whole pool: not with --rows")
+    if args.zoom:
+        zoom = np.load(args.pool_cache / "zoom.npy", mmap_mode="r")
+        rows = len(zoom) if rows is None else rows
+        if rows > len(zoom):
+            raise SystemExit(f"--rows {rows}: zoom_pool.py rendered {len(zoom)} states")
+    if rows is not None:
+        if not 0 < rows <= len(distiller.data):
+            raise SystemExit(f"--rows must be in 1..{len(distiller.data)}, got {rows}")
+        distiller.data.arrays = subset(distiller.data.arrays, np.arange(rows))
+        if args.zoom:
+            images = distiller.data.arrays["images"]
+            distiller.data.arrays["images"] = JoinedViews(images, Rows(zoom, np.arange(rows)))
+        print(f"regressing on the first {rows} states" + (" with their zoomed views" * args.zoom))
     if args.stalled_only is not None:
         arrays = distiller.data.arrays
         counts = pool_stall_counts(
@@ -231,6 +267,8 @@ def main() -> None:
         "relabel": [str(name) for name in args.relabel],
         "updates": args.updates,
         **({"stalled_only": args.stalled_only} if args.stalled_only is not None else {}),
+        **({"rows": rows} if rows is not None else {}),
+        **({"zoom": True} if args.zoom else {}),
     }
     loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
@@ -263,6 +301,8 @@ def main() -> None:
         "relabel": [str(name) for name in args.relabel],
         "samples": len(distiller.data),
         "stalled_only": args.stalled_only,
+        "rows": rows,
+        "zoom": args.zoom,
         "changes": changes,
         "updates": args.updates,
         "torch_threads": args.torch_threads or student.loop.torch_threads,

@@ -116,6 +116,12 @@ STUDENTS = {
     # ... and an escape student: regressed on the pool's stalled states only (the tip not
     # nearer its target for 10 steps or more), to act where the seeds stall (`SWITCHED`).
     "3v-escape10": str(ROOT / "runs" / "offline" / "d3-escape10" / "policy.pt"),
+    # ... and two fresh students on the first two runs' states of the pool, 24000 steps: the
+    # views alone, and the views with their zoomed views (`zoom_pool.py`, `offline.py --zoom`).
+    **{
+        f"3v-rows147k-{kind}": str(ROOT / "runs" / "offline" / f"d3-rows147k-{kind}" / "policy.pt")
+        for kind in ("base", "zoom")
+    },
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),

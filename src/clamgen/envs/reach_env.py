@@ -17,8 +17,9 @@ A `Dict` following the goal-conditioned convention:
 - `achieved_goal`: (3,) float32 tip position, world frame, metres.
 - `desired_goal`: (3,) float32 target centre, world frame, metres.
 - `images`: (V, 4, H, W) uint8, RGB and depth per view, when `num_views > 0` and mode is
-  "images" or "both". Depth is metric depth along the optical axis mapped linearly from
-  `DEPTH_RANGE_M` = (0.3, 2.5) m onto 0..255 (clipped).
+  "images" or "both" ((2V, 4, H, W) with `zoom_views`: the V views, then their zoomed
+  views). Depth is metric depth along the optical axis mapped linearly from `DEPTH_RANGE_M` =
+  (0.3, 2.5) m onto 0..255 (clipped).
 - `obstacles`: (N, 8) float32, `Obstacles.as_array()`, only with `include_obstacle_state`.
 
 ## Rewards
@@ -101,6 +102,9 @@ class ReachEnv(gym.Env):
         fine_depth_size: > 0: also render each view's depth alone at this size into
             `fine_depth` (V, 1, S, S) uint8, a finer depth camera at the same pose for a
             safety layer (`clamgen.experiments.depth_shield`; beyond the paper); 0: none.
+        zoom_views: also render, after the V views, a zoomed view from each view camera's
+            position turned to the target (`constants.ZOOM_FOVY_DEG`; beyond the paper):
+            `images` is then (2V, 4, H, W).
     """
 
     metadata: ClassVar[dict] = {
@@ -123,6 +127,7 @@ class ReachEnv(gym.Env):
         render_mode: str | None = None,
         task_family: str | None = None,
         fine_depth_size: int = 0,
+        zoom_views: bool = False,
     ) -> None:
         num_obstacles = _integer("num_obstacles", num_obstacles, 0, C.MAX_OBSTACLES)
         task_family = task_family or ("obstacles" if num_obstacles else "reach")
@@ -154,6 +159,10 @@ class ReachEnv(gym.Env):
             raise ValueError(
                 f"fine_depth_size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine_depth_size}"
             )
+        if not isinstance(zoom_views, bool | np.bool_):
+            raise ValueError(f"zoom_views must be True or False, got {zoom_views!r}")
+        if zoom_views and not num_views:
+            raise ValueError("zoom_views renders a zoomed view per view: it needs num_views >= 1")
         if max_episode_steps is not None:
             max_episode_steps = _integer("max_episode_steps", max_episode_steps, 1)
         if not (
@@ -168,6 +177,7 @@ class ReachEnv(gym.Env):
         self.num_obstacles = num_obstacles
         self.task_family = task_family
         self.num_views = num_views
+        self.zoom_views = bool(zoom_views)
         self.image_size = image_size
         self.target_speed = reach.validate_speed(target_speed)
         self.obs_mode = obs_mode
@@ -182,10 +192,11 @@ class ReachEnv(gym.Env):
         self.render_mode = render_mode
 
         self.scene = Scene(collision_margin_m)
+        cameras = [*self.scene.camera_ids[: self.num_views]]
+        if self.zoom_views:
+            cameras += [*self.scene.zoom_camera_ids[: self.num_views]]
         self._renderer = (
-            MultiViewRenderer(
-                self.scene.model, self.scene.camera_ids[: self.num_views], image_size, image_size
-            )
+            MultiViewRenderer(self.scene.model, cameras, image_size, image_size)
             if self.num_views
             else None
         )
@@ -214,7 +225,7 @@ class ReachEnv(gym.Env):
         spaces["achieved_goal"] = goal_space
         spaces["desired_goal"] = goal_space
         if self.num_views:
-            shape = (self.num_views, 4, self.image_size, self.image_size)
+            shape = (len(cameras), 4, self.image_size, self.image_size)
             spaces["images"] = gym.spaces.Box(0, 255, shape, np.uint8)
         if fine_depth_size:
             shape = (self.num_views, 1, fine_depth_size, fine_depth_size)
@@ -406,6 +417,8 @@ class ReachEnv(gym.Env):
         obs["desired_goal"] = scene.data.mocap_pos[scene.target_mocap].astype(np.float32)
         if self._renderer is not None:
             mujoco.mj_kinematics(scene.model, scene.data)  # mocap target moved since last update
+            if self.zoom_views:
+                mujoco.mj_camlight(scene.model, scene.data)  # the zoomed cameras turn to it
             obs["images"] = images_from_render(*self._renderer.render(scene.data))
         if self._fine_renderer is not None:
             obs["fine_depth"] = depth_to_uint8(self._fine_renderer.render(scene.data)[1])[:, None]

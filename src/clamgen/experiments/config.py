@@ -138,6 +138,10 @@ class EnvConfig:
     the arm stops short of them and the step is penalised, and the policy learns to keep this
     clearance (an RRT teacher, `loop.teacher_fraction`, then plans with it too). Periodic
     validation and every table use true contact (0). 0: the paper."""
+    zoom_views: bool = False
+    """Beyond the paper: each view camera also renders a zoomed view turned to the target
+    (`ReachEnv(zoom_views=True)`), so images hold 2 x num_views views (the encoder's
+    `num_views` counts both). Students only: stage-2 RL's image HER does not re-render them."""
     collision_ends_episode: bool = False
     """Beyond the paper: in the training envs a collision ends the episode and its transition is
     terminal, so that the learner values a collision as the evaluation rule counts it, a
@@ -159,6 +163,8 @@ class EnvConfig:
         _require_int("env.image_size", self.image_size, 8, MAX_IMAGE_SIZE)
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"env.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}")
+        if self.zoom_views and self.num_views == 0:
+            raise ValueError("env.zoom_views needs env.num_views >= 1 (a zoomed view per view)")
         if (self.num_views > 0) != (self.obs_mode != "joints"):
             raise ValueError(
                 f"env.num_views={self.num_views} does not fit env.obs_mode={self.obs_mode!r}: "
@@ -177,6 +183,7 @@ class EnvConfig:
             "image_size": self.image_size,
             "obs_mode": self.obs_mode,
             "include_obstacle_state": self.include_obstacle_state,
+            **({"zoom_views": True} if self.zoom_views else {}),
         }
 
 

@@ -131,6 +131,24 @@ class Rows:
         return out if dtype is None else out.astype(dtype)
 
 
+class JoinedViews:
+    """Two image arrays of the same rows, (N, V1, ...) and (N, V2, ...), side by side along the
+    views axis without copying them: indexing gives their concatenation (N', V1 + V2, ...)."""
+
+    def __init__(self, first, second) -> None:
+        if len(first) != len(second) or first.shape[2:] != second.shape[2:]:
+            raise ValueError(f"cannot join views of shapes {first.shape} and {second.shape}")
+        self.first, self.second = first, second
+        self.shape = (len(first), first.shape[1] + second.shape[1], *first.shape[2:])
+        self.dtype = first.dtype
+
+    def __len__(self) -> int:
+        return len(self.first)
+
+    def __getitem__(self, item) -> np.ndarray:
+        return np.concatenate([self.first[item], self.second[item]], axis=1)
+
+
 def subset(arrays: dict[str, np.ndarray], index: np.ndarray) -> dict[str, Rows]:
     """The pool's rows `index`, every key alike, without copying the images."""
     return {key: Rows(value, index) for key, value in arrays.items()}

@@ -101,10 +101,12 @@ class Stage2Config:
 
     def __post_init__(self) -> None:
         images = self.agent.obs_source == "images"
-        if images and self.env.num_views != self.agent.encoder.num_views:
+        views = self.env.num_views * (2 if self.env.zoom_views else 1)
+        if images and views != self.agent.encoder.num_views:
+            zoom = " x 2 with env.zoom_views" if self.env.zoom_views else ""
             raise ValueError(
-                f"env.num_views ({self.env.num_views}) must equal agent.encoder.num_views "
-                f"({self.agent.encoder.num_views})"
+                f"env.num_views ({self.env.num_views}{zoom}) must equal "
+                f"agent.encoder.num_views ({self.agent.encoder.num_views})"
             )
         if images and self.env.image_size != self.agent.stored_image_size:
             raise ValueError(
@@ -139,6 +141,12 @@ def residual_stage(config: Stage2Config) -> Stage:
 
     def make_rerender():
         from clamgen.replay.rerender import RerenderWorker
+
+        if config.env.zoom_views:
+            raise ValueError(
+                "image_her re-renders the views only, not env.zoom_views: train zoomed "
+                "students by distillation, or set image_her=False"
+            )
 
         return RerenderWorker(
             num_views=config.env.num_views,

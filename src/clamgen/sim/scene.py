@@ -64,6 +64,14 @@ def _camera_xml(name: str, pos, target, fovy: float) -> str:
     )
 
 
+def _zoom_camera_xml(name: str, pos, target, fovy: float) -> str:
+    """The zoomed camera of a view camera: its position, turned to the target body."""
+    return (
+        f'<camera name="{name}{C.ZOOM_SUFFIX}" pos="{_fmt(pos)}" mode="targetbody" '
+        f'target="target" fovy="{C.ZOOM_FOVY_DEG}"/>'
+    )
+
+
 # Link capsules in each link body's frame: (name, fromto, radius). Body `link{i}` is DH frame
 # i-1 rotated by q_i about z, so e.g. the upper arm runs along x of `link2` from the shoulder to
 # a2, displaced by the shoulder offset along the joint axis.
@@ -140,7 +148,12 @@ def build_mjcf() -> str:
     """The scene's MJCF: table, UR5 with suction gripper, target, obstacle slots, cameras."""
     tx, ty = C.TABLE_CENTER_XY_M
     hx, hy, hz = C.TABLE_HALF_SIZE_M
-    cameras = "\n".join(_camera_xml(*cam) for cam in (*C.CAMERAS, C.OVERVIEW_CAMERA))
+    cameras = "\n".join(
+        [
+            *(_camera_xml(*cam) for cam in (*C.CAMERAS, C.OVERVIEW_CAMERA)),
+            *(_zoom_camera_xml(*cam) for cam in C.CAMERAS),
+        ]
+    )
     obstacles = "\n".join(_obstacle_xml(i) for i in range(C.MAX_OBSTACLES))
     extent = 1.0  # near/far planes below are given in units of the extent, i.e. metres
     return f"""<mujoco model="clamgen_ur5">
@@ -240,6 +253,9 @@ class Scene:
         )
         self.camera_ids = np.array(
             [name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, cam[0]) for cam in C.CAMERAS]
+        )
+        self.zoom_camera_ids = np.array(
+            [name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, cam[0] + C.ZOOM_SUFFIX) for cam in C.CAMERAS]
         )
         self.overview_camera_id = name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, C.OVERVIEW_CAMERA[0])
         robot_bodies = {name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"link{i}") for i in range(1, 7)}
