@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from chunks import ChunkDistiller, future_labels  # (this directory: the script's own)
 from tqdm import tqdm
 
 from clamgen.experiments import checkpoint as ckpt
@@ -48,7 +49,7 @@ from clamgen.experiments.distill import (
 )
 from clamgen.experiments.pooled import JoinedViews, Rows, file_lengths, load_pooled, subset
 from clamgen.experiments.stage2 import Stage2Config
-from clamgen.experiments.stall import pool_stall_counts
+from clamgen.experiments.stall import pool_episodes, pool_stall_counts
 from clamgen.experiments.train import POLICY_NAME
 
 RELABEL_BATCH = 256
@@ -151,6 +152,14 @@ def main() -> None:
         "rendered, by default)",
     )
     parser.add_argument(
+        "--chunk",
+        type=int,
+        default=None,
+        metavar="K",
+        help="also regress a chunk head on each state's next K labels (chunks.py; beyond the "
+        "paper), saved as OUT/chunk_head.pt",
+    )
+    parser.add_argument(
         "--stalled-only",
         type=int,
         default=None,
@@ -217,7 +226,8 @@ def main() -> None:
         changes[name] = kind(value)
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
-    distiller = Distiller(DistillConfig(student=student, distill=settings))
+    make = ChunkDistiller if args.chunk else Distiller
+    distiller = make(DistillConfig(student=student, distill=settings))
     views = student.env.num_views if args.data_views is None else args.data_views
     relabellers = []
     if args.relabel:
@@ -247,6 +257,15 @@ def main() -> None:
             images = distiller.data.arrays["images"]
             distiller.data.arrays["images"] = JoinedViews(images, Rows(zoom, np.arange(rows)))
         print(f"regressing on the first {rows} states" + (" with their zoomed views" * args.zoom))
+    if args.chunk:
+        if args.stalled_only is not None:
+            raise SystemExit("--chunk takes each state's episode: not with --stalled-only")
+        arrays = distiller.data.arrays
+        lengths = np.cumsum(file_lengths(sources))
+        lengths = np.diff([0, *lengths[lengths < len(distiller.data)], len(distiller.data)])
+        episode = pool_episodes(np.asarray(arrays["obstacles"]), [int(n) for n in lengths])
+        distiller.attach_chunks(future_labels(np.asarray(arrays["label"]), episode, args.chunk))
+        print(f"chunk head on the next {args.chunk} labels of {episode.max() + 1} episodes")
     if args.stalled_only is not None:
         arrays = distiller.data.arrays
         counts = pool_stall_counts(
@@ -269,6 +288,7 @@ def main() -> None:
         **({"stalled_only": args.stalled_only} if args.stalled_only is not None else {}),
         **({"rows": rows} if rows is not None else {}),
         **({"zoom": True} if args.zoom else {}),
+        **({"chunk": args.chunk} if args.chunk else {}),
     }
     loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
@@ -282,6 +302,8 @@ def main() -> None:
         "updates": args.updates,
     }
     ckpt.save_torch(args.out / POLICY_NAME, payload)
+    if args.chunk:
+        distiller.save_head(args.out)
     state = {
         "student": distiller.student.state_dict(),
         "pose_head": distiller.pose_head.state_dict(),
@@ -303,6 +325,7 @@ def main() -> None:
         "stalled_only": args.stalled_only,
         "rows": rows,
         "zoom": args.zoom,
+        "chunk": args.chunk,
         "changes": changes,
         "updates": args.updates,
         "torch_threads": args.torch_threads or student.loop.torch_threads,

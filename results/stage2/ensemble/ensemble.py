@@ -61,6 +61,8 @@ CROPPED = {f"3v-s{seed}+crops": f"3v-s{seed}" for seed in (5, 7, 8)}
 """Each 3-view seed acting with the mean of its pre-squash means over `CROP_OFFSETS`."""
 
 
+CHUNKED = {"3v-rows147k-chunk+ens": "3v-rows147k-chunk"}
+"""Session 28: the chunk student acting with temporal ensembling (`distill/chunks.py`)."""
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
@@ -120,7 +122,7 @@ STUDENTS = {
     # views alone, and the views with their zoomed views (`zoom_pool.py`, `offline.py --zoom`).
     **{
         f"3v-rows147k-{kind}": str(ROOT / "runs" / "offline" / f"d3-rows147k-{kind}" / "policy.pt")
-        for kind in ("base", "zoom")
+        for kind in ("base", "zoom", "chunk")
     },
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
@@ -220,6 +222,15 @@ def load(name: str):
         return guard.wrap(
             policy, kwargs["num_views"], kwargs["image_size"]
         ), kwargs | guard.env_kwargs()
+    if name in CHUNKED:
+        import sys
+
+        sys.path.insert(0, str(HERE.parent / "distill"))
+        from chunks import HEAD_NAME, ChunkEnsemblePolicy
+
+        policy, kwargs = load(CHUNKED[name])
+        head = Path(STUDENTS[CHUNKED[name]]).parent / HEAD_NAME
+        return ChunkEnsemblePolicy(policy.agent, head), kwargs
     if name in CROPPED:
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs
@@ -271,7 +282,7 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED):
+        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED, *CHUNKED):
             line = by.get((name, family))
             if line is None:
                 continue
@@ -298,7 +309,7 @@ def main() -> None:
     parser.add_argument(
         "--policies",
         nargs="+",
-        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED],
+        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED, *CHUNKED],
         default=[*MEMBERS, MEAN],
     )
     parser.add_argument(

@@ -499,6 +499,9 @@ class Distiller:
                     self.pose_head(visual).view(poses.shape),
                     scale_lengths(poses, self.config.distill.pose_length_scale_m),
                 )
+            extra = self.extra_loss(index, obs, visual)
+            if extra is not None:
+                loss = loss + extra
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
@@ -506,6 +509,12 @@ class Distiller:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
         return loss_value
+
+    def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
+        """A further term of the regression loss on the batch of states `index` (`obs`, the
+        student's visual encoding of them); None: none. For subclasses that train another
+        head beside the student (e.g. `results/stage2/distill/chunks.py`)."""
+        return None
 
     def batch_index(self, batch_size: int) -> np.ndarray:
         """The states of one regression batch, drawn from all data (`draw`)."""

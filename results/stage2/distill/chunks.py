@@ -1,0 +1,133 @@
+"""Action chunks for a distilled student (beyond the paper): a test of look-ahead in one pass.
+
+The lookahead teacher leaves a stall with a manoeuvre of several steps; a student that acts on
+each state alone leaves it only if every state on the way says so. Here the student also
+predicts the teacher's next `steps` labels of its episode (a chunk head on the actor's
+features: the visual encoding and the joints / goal encoding), regressed on the consecutive
+labels of the pooled data's episodes (`clamgen.experiments.stall.pool_episodes`), and may act
+with temporal ensembling: at each step, the weighted mean of what the steps before predicted
+for it and what it predicts now (weights `exp(-DECAY * age)`), so that a way out, once begun,
+is carried on. `offline.py --chunk K` regresses such a student (`ChunkDistiller`, the head's
+weights in `OUT/chunk_head.pt`); `ChunkEnsemblePolicy` acts with it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.distill import Distiller
+
+CHUNK_WEIGHT = 1.0  # of the chunk loss (mean squared error, pre-squash) beside the imitation loss
+HIDDEN = 256
+DECAY = 0.5  # temporal ensembling: a prediction made `age` steps ago weighs exp(-DECAY * age)
+HEAD_NAME = "chunk_head.pt"
+
+
+def future_labels(labels: np.ndarray, episode: np.ndarray, steps: int) -> np.ndarray:
+    """(N, steps, A): for each row, the labels of the next `steps` rows of its episode (rows
+    of one episode are in step order); past the episode's end its last label again."""
+    out = np.empty((len(labels), steps, labels.shape[1]), labels.dtype)
+    order = np.argsort(episode, kind="stable")
+    bounds = np.flatnonzero(np.diff(episode[order])) + 1
+    for rows in np.split(order, bounds):
+        position = np.arange(len(rows))
+        for k in range(steps):
+            out[rows, k] = labels[rows[np.minimum(position + k + 1, len(rows) - 1)]]
+    return out
+
+
+class ChunkHead(torch.nn.Module):
+    """The actor's features -> the next `steps` pre-squash actions (steps, A)."""
+
+    def __init__(self, in_features: int, steps: int, action_dim: int) -> None:
+        super().__init__()
+        self.steps, self.action_dim = steps, action_dim
+        self.net = torch.nn.Sequential(
+            torch.nn.Linear(in_features, HIDDEN),
+            torch.nn.ReLU(),
+            torch.nn.Linear(HIDDEN, steps * action_dim),
+        )
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.net(features).view(-1, self.steps, self.action_dim)
+
+
+def _features(agent, obs: dict, visual: torch.Tensor) -> torch.Tensor:
+    return agent.actor.features(visual, agent._actor_view(agent._state(obs)))
+
+
+class ChunkDistiller(Distiller):
+    """A `Distiller` that regresses a chunk head beside the student on `future` (N, steps, A),
+    the next labels of each state of its data (`future_labels`)."""
+
+    def attach_chunks(self, future: np.ndarray) -> None:
+        self.future = future
+        probe = self.student.actor.features(
+            torch.zeros(1, self.student.feature_dim),
+            torch.zeros(1, self.student.config.encoder.low_dim_input),
+        )
+        self.chunk_head = ChunkHead(probe.shape[1], future.shape[1], future.shape[2])
+        self.optimizer.add_param_group({"params": list(self.chunk_head.parameters())})
+
+    def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
+        target = torch.as_tensor(self.future[index])
+        predicted = self.chunk_head(_features(self.student, obs, visual))
+        return CHUNK_WEIGHT * torch.mean((predicted - target) ** 2)
+
+    def regression_state(self) -> dict[str, Any]:
+        return {**super().regression_state(), "chunk_head": self.chunk_head.state_dict()}
+
+    def load_regression_state(self, state: dict[str, Any]) -> None:
+        super().load_regression_state(state)
+        self.chunk_head.load_state_dict(state["chunk_head"])
+
+    def save_head(self, out: Path) -> None:
+        ckpt.save_torch(
+            out / HEAD_NAME,
+            {
+                "format": ckpt.FORMAT,
+                "kind": "chunk-head",
+                "in_features": self.chunk_head.net[0].in_features,
+                "steps": self.chunk_head.steps,
+                "action_dim": self.chunk_head.action_dim,
+                "state": self.chunk_head.state_dict(),
+            },
+        )
+
+
+class ChunkEnsemblePolicy:
+    """A chunk student acting with temporal ensembling (a `Policy`): the tanh of the weighted
+    mean of its pre-squash action now and what it predicted for this step 1..steps steps ago."""
+
+    def __init__(self, agent, head_path: Path, decay: float = DECAY) -> None:
+        saved = ckpt.load_torch(head_path, kind="chunk-head")
+        self.agent = agent
+        self.head = ChunkHead(saved["in_features"], saved["steps"], saved["action_dim"])
+        self.head.load_state_dict(saved["state"])
+        self.decay = decay
+        self.history: list[np.ndarray] = []
+
+    def reset(self, env=None) -> None:
+        self.history = []
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        agent = self.agent
+        batch = {k: np.asarray(v)[None] for k, v in obs.items()}
+        with torch.inference_mode():
+            visual = agent.critic.encoder(agent._visual(batch, train=False))
+            low_dim = agent._actor_view(agent._state(batch))
+            now = agent._pre_squash(visual, low_dim)[0][0]
+            ahead = self.head(agent.actor.features(visual, low_dim))[0]
+        self.history.append(torch.cat([now[None], ahead]).numpy())  # this step, then ahead
+        self.history = self.history[-(self.head.steps + 1) :]
+        values, weights = [], []
+        for age, predicted in enumerate(reversed(self.history)):
+            values.append(predicted[age])
+            weights.append(np.exp(-self.decay * age))
+        mean = np.average(values, axis=0, weights=weights)
+        return np.tanh(mean).astype(np.float32)
