@@ -4,11 +4,12 @@ The lookahead teacher leaves a stall with a manoeuvre of several steps; a studen
 each state alone leaves it only if every state on the way says so. Here the student also
 predicts the teacher's next `steps` labels of its episode (a chunk head on the actor's
 features: the visual encoding and the joints / goal encoding), regressed on the consecutive
-labels of the pooled data's episodes (`clamgen.experiments.stall.pool_episodes`), and may act
-with temporal ensembling: at each step, the weighted mean of what the steps before predicted
-for it and what it predicts now (weights `exp(-DECAY * age)`), so that a way out, once begun,
-is carried on. `offline.py --chunk K` regresses such a student (`ChunkDistiller`, the head's
-weights in `OUT/chunk_head.pt`); `ChunkEnsemblePolicy` acts with it.
+labels of the pooled data's episodes (`clamgen.experiments.stall.pool_episodes` and
+`episode_rows`), and may act with temporal ensembling: at each step, the weighted mean of what
+the steps before predicted for it and what it predicts now (weights `exp(-DECAY * age)`), so
+that a way out, once begun, is carried on. `offline.py --chunk K` regresses such a student
+(`ChunkDistiller`, the head's weights in `OUT/chunk_head.pt`); `ChunkEnsemblePolicy` acts with
+it.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import torch
 
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.distill import Distiller
+from clamgen.experiments.stall import episode_rows
 
 CHUNK_WEIGHT = 1.0  # of the chunk loss (mean squared error, pre-squash) beside the imitation loss
 HIDDEN = 256
@@ -32,9 +34,7 @@ def future_labels(labels: np.ndarray, episode: np.ndarray, steps: int) -> np.nda
     """(N, steps, A): for each row, the labels of the next `steps` rows of its episode (rows
     of one episode are in step order); past the episode's end its last label again."""
     out = np.empty((len(labels), steps, labels.shape[1]), labels.dtype)
-    order = np.argsort(episode, kind="stable")
-    bounds = np.flatnonzero(np.diff(episode[order])) + 1
-    for rows in np.split(order, bounds):
+    for rows in episode_rows(episode):
         position = np.arange(len(rows))
         for k in range(steps):
             out[rows, k] = labels[rows[np.minimum(position + k + 1, len(rows) - 1)]]

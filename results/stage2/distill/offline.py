@@ -241,6 +241,11 @@ def main() -> None:
         distiller.data.arrays = load_pooled(sources, views, relabel, args.pool_cache)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(str(error)) from None
+    episode = None  # the pool's episode numbers, for --chunk
+    if args.chunk:
+        if args.stalled_only is not None:
+            raise SystemExit("--chunk takes each state's episode: not with --stalled-only")
+        episode = pool_episodes(distiller.data.arrays["obstacles"], file_lengths(sources))
     rows = args.rows
     if rows is not None and args.stalled_only is not None:
         raise SystemExit("--stalled-only counts stalls over the whole pool: not with --rows")
@@ -258,14 +263,10 @@ def main() -> None:
             distiller.data.arrays["images"] = JoinedViews(images, Rows(zoom, np.arange(rows)))
         print(f"regressing on the first {rows} states" + (" with their zoomed views" * args.zoom))
     if args.chunk:
-        if args.stalled_only is not None:
-            raise SystemExit("--chunk takes each state's episode: not with --stalled-only")
-        arrays = distiller.data.arrays
-        lengths = np.cumsum(file_lengths(sources))
-        lengths = np.diff([0, *lengths[lengths < len(distiller.data)], len(distiller.data)])
-        episode = pool_episodes(np.asarray(arrays["obstacles"]), [int(n) for n in lengths])
-        distiller.attach_chunks(future_labels(np.asarray(arrays["label"]), episode, args.chunk))
-        print(f"chunk head on the next {args.chunk} labels of {episode.max() + 1} episodes")
+        episode = episode[: len(distiller.data)]  # (the first rows hold whole data files)
+        labels = np.asarray(distiller.data.arrays["label"])
+        distiller.attach_chunks(future_labels(labels, episode, args.chunk))
+        print(f"chunk head on the next {args.chunk} labels of {len(np.unique(episode))} episodes")
     if args.stalled_only is not None:
         arrays = distiller.data.arrays
         counts = pool_stall_counts(

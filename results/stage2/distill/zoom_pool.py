@@ -24,24 +24,19 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from clamgen.experiments.pooled import cache_files
+
 ZOOM_NAME = "zoom.npy"
 RECORD_NAME = "zoom.json"
 CHUNK = 500  # rows per progress update and per flush
 
 
-def _rows_of_runs(manifest: dict, runs: int) -> int:
+def _rows_of_runs(cache: Path, runs: int) -> int:
     """Rows of the cache's first `runs` runs (its files are in run order, each run's in
     iteration order under RUN/data/)."""
-    seen, rows = [], 0
-    for path, *_ in manifest["inputs"]["files"]:
-        run = str(Path(path).parent.parent)
-        if run not in seen:
-            seen.append(run)
-        if len(seen) > runs:
-            break
-        with np.load(path) as data:
-            rows += len(data["label"])
-    return rows
+    files = cache_files(cache)
+    first = list(dict.fromkeys(path.parent.parent for path, _ in files))[:runs]
+    return sum(rows for path, rows in files if path.parent.parent in first)
 
 
 def _render(cache: Path, start: int, stop: int, views: int, size: int, queue) -> None:
@@ -82,7 +77,7 @@ def main() -> None:
     manifest = json.loads((args.cache / "manifest.json").read_text())
     images = np.load(args.cache / "images.npy", mmap_mode="r")
     views, size = images.shape[1], images.shape[-1]
-    rows = _rows_of_runs(manifest, args.runs)
+    rows = _rows_of_runs(args.cache, args.runs)
     from clamgen.sim import constants as C
 
     record = {

@@ -16,7 +16,6 @@ its mean), the cosine to the label (median) and the squared error. Chooses nothi
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from ensemble import STUDENTS
 
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.policies import load_policy
-from clamgen.experiments.pooled import data_files
+from clamgen.experiments.pooled import cache_files, data_files
 from clamgen.experiments.stall import pool_stall_counts
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -45,11 +44,7 @@ def main() -> None:
     keys = ("images", "observation", "achieved_goal", "desired_goal", "label", "obstacles")
     if args.continuation is None:
         pool = {k: np.load(args.pool_cache / f"{k}.npy", mmap_mode="r") for k in keys}
-        manifest = json.loads((args.pool_cache / "manifest.json").read_text())
-        lengths = []
-        for path, *_ in manifest["inputs"]["files"]:
-            with np.load(path) as data:
-                lengths.append(len(data["label"]))
+        lengths = [rows for _, rows in cache_files(args.pool_cache)]
     else:
         chunks = [ckpt.load_npz(path) for path in data_files(args.continuation)]
         pool = {k: np.concatenate([chunk[k] for chunk in chunks]) for k in keys}

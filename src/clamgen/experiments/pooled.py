@@ -101,13 +101,20 @@ def load_pooled(
     return arrays
 
 
+def _rows(path: Path) -> int:
+    with np.load(path, allow_pickle=False) as data:
+        return len(data["label"])
+
+
 def file_lengths(sources: list[tuple[Path, int | None]]) -> list[int]:
     """The rows of each data file of `sources` (as `load_pooled`), in pool order."""
-    lengths = []
-    for path in (path for _, paths in _files(sources) for path in paths):
-        with np.load(path, allow_pickle=False) as data:
-            lengths.append(len(data["label"]))
-    return lengths
+    return [_rows(path) for _, paths in _files(sources) for path in paths]
+
+
+def cache_files(cache: Path) -> list[tuple[Path, int]]:
+    """The data files a pool cache was written from, in pool order, with their rows."""
+    manifest = json.loads((Path(cache) / MANIFEST_NAME).read_text())
+    return [(Path(path), _rows(Path(path))) for path, *_ in manifest["inputs"]["files"]]
 
 
 class Rows:

@@ -37,21 +37,10 @@ def tip_distance(obs: dict[str, np.ndarray]) -> float:
     return float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - obs["desired_goal"]))
 
 
-def stall_counts(distances: np.ndarray) -> np.ndarray:
-    """(T,) for each step of one episode (the tip's distances to the target, in order), the
-    steps since the last one that made progress (`PROGRESS_M`); the first state counts 0."""
-    counts = np.empty(len(distances), np.int64)
-    best, last = np.inf, 0
-    for t, distance in enumerate(np.asarray(distances, np.float64)):
-        if distance < best - PROGRESS_M:
-            best, last = distance, t
-        counts[t] = t - last
-    return counts
-
-
 class StallCounter:
-    """`stall_counts` online: `update(obs)` at each observation of an episode, `reset()` at its
-    start."""
+    """The stall count of an episode as it goes: `count(distance)` (or `update(obs)`) at each of
+    its states, the tip's distance to the target there, gives the steps since the last state
+    that made progress (`PROGRESS_M`; the first state counts 0); `reset()` at its start."""
 
     def __init__(self) -> None:
         self.reset()
@@ -59,12 +48,21 @@ class StallCounter:
     def reset(self) -> None:
         self._best, self._last, self._t = np.inf, 0, -1
 
-    def update(self, obs: dict[str, np.ndarray]) -> int:
+    def count(self, distance: float) -> int:
         self._t += 1
-        distance = tip_distance(obs)
         if distance < self._best - PROGRESS_M:
             self._best, self._last = distance, self._t
         return self._t - self._last
+
+    def update(self, obs: dict[str, np.ndarray]) -> int:
+        return self.count(tip_distance(obs))
+
+
+def stall_counts(distances: np.ndarray) -> np.ndarray:
+    """(T,) `StallCounter`'s count at each state of one episode (the tip's distances to the
+    target, in step order)."""
+    counter = StallCounter()
+    return np.array([counter.count(d) for d in np.asarray(distances, np.float64)], np.int64)
 
 
 def pool_episodes(obstacles: np.ndarray, file_lengths: list[int]) -> np.ndarray:
@@ -81,16 +79,19 @@ def pool_episodes(obstacles: np.ndarray, file_lengths: list[int]) -> np.ndarray:
     return episode.reshape(-1)
 
 
+def episode_rows(episode: np.ndarray) -> list[np.ndarray]:
+    """The rows of each episode (numbers as `pool_episodes` gives them), each in step order."""
+    order = np.argsort(episode, kind="stable")
+    return np.split(order, np.flatnonzero(np.diff(episode[order])) + 1)
+
+
 def pool_stall_counts(
     achieved: np.ndarray, desired: np.ndarray, obstacles: np.ndarray, file_lengths: list[int]
 ) -> np.ndarray:
     """(N,) `stall_counts` of every row of pooled distillation data (`pool_episodes`)."""
     distances = np.linalg.norm(np.asarray(achieved) - np.asarray(desired), axis=1)
-    episode = pool_episodes(obstacles, file_lengths)
-    order = np.argsort(episode, kind="stable")  # each episode's rows, in step order
-    bounds = np.flatnonzero(np.diff(episode[order])) + 1
     counts = np.empty(len(distances), np.int64)
-    for rows in np.split(order, bounds):
+    for rows in episode_rows(pool_episodes(obstacles, file_lengths)):
         counts[rows] = stall_counts(distances[rows])
     return counts
 
