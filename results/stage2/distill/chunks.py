@@ -71,7 +71,9 @@ class ChunkDistiller(Distiller):
             torch.zeros(1, self.student.feature_dim),
             torch.zeros(1, self.student.config.encoder.low_dim_input),
         )
-        self.chunk_head = ChunkHead(probe.shape[1], future.shape[1], future.shape[2])
+        with torch.random.fork_rng(devices=[]):  # its initial weights from the distill seed
+            torch.manual_seed(self.config.distill.seed)
+            self.chunk_head = ChunkHead(probe.shape[1], future.shape[1], future.shape[2])
         self.optimizer.add_param_group({"params": list(self.chunk_head.parameters())})
 
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):

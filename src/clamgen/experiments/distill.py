@@ -298,7 +298,9 @@ class Distiller:
         self.planners = (
             [LookaheadPolicy(self.lookahead) for _ in self.envs] if self.lookahead else []
         )
-        self.pose_head = torch.nn.Linear(self.student.feature_dim, num_obstacles * POSE_SIZE)
+        with torch.random.fork_rng(devices=[]):  # its initial weights from the distill seed
+            torch.manual_seed(settings.seed)
+            self.pose_head = torch.nn.Linear(self.student.feature_dim, num_obstacles * POSE_SIZE)
         params = [
             *self.student.critic.encoder.parameters(),
             *self.student.actor.parameters(),
