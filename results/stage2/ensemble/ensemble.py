@@ -61,6 +61,16 @@ CROPPED = {f"3v-s{seed}+crops": f"3v-s{seed}" for seed in (5, 7, 8)}
 """Each 3-view seed acting with the mean of its pre-squash means over `CROP_OFFSETS`."""
 
 
+BURST = {
+    "3v-s5+burst": ("3v-s5", {}),
+    "3v-s5+burst20": ("3v-s5", {"after_steps": 20}),
+    **{f"3v-s{seed}+burst-half": (f"3v-s{seed}", {"scale": 0.5}) for seed in (5, 7, 8)},
+}
+"""Session 29: a 3-view seed with random escapes from its stalls (`stall.StallBurst`, its
+defaults but for the options given)."""
+AMPLIFIED = {"3v-s5+amplify": "3v-s5"}
+"""Session 29: a 3-view seed whose command, while its episode has stalled 10 steps or more, is
+scaled up until its largest joint command is 1 (`StallSwitch` to `SaturatedPolicy`)."""
 CHUNKED = {"3v-rows147k-chunk+ens": "3v-rows147k-chunk"}
 """Session 28: the chunk student acting with temporal ensembling (`distill/chunks.py`)."""
 STUDENTS = {
@@ -160,6 +170,8 @@ COMPARED = {
     "3v-s5+hybrid": ("3v-s5", "3v-s5+shield"),
     **{name: (policy,) for name, (policy, _) in SWITCHED.items()},
     **{name: (policy,) for name, policy in CROPPED.items()},
+    **{name: (policy,) for name, (policy, _) in BURST.items()},
+    **{name: (policy,) for name, policy in AMPLIFIED.items()},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
@@ -204,6 +216,20 @@ class CropMeanPolicy:
             return np.tanh(self.agent.mean_action(batch).mean(0))
 
 
+class SaturatedPolicy:
+    """A policy's command scaled (direction kept) until its largest joint command is 1."""
+
+    def __init__(self, policy) -> None:
+        self.policy = policy
+
+    def reset(self, env=None) -> None:
+        self.policy.reset(env)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        action = np.asarray(self.policy.act(obs))
+        return action / max(float(np.abs(action).max()), 1e-6)
+
+
 def done(out: Path = OUT) -> list[dict]:
     if not out.exists():
         return []
@@ -234,6 +260,17 @@ def load(name: str):
     if name in CROPPED:
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs
+    if name in BURST:
+        from clamgen.experiments.stall import StallBurst
+
+        base, options = BURST[name]
+        policy, kwargs = load(base)
+        return StallBurst(policy, **options), kwargs
+    if name in AMPLIFIED:
+        from clamgen.experiments.stall import StallSwitch
+
+        policy, kwargs = load(AMPLIFIED[name])
+        return StallSwitch(policy, SaturatedPolicy(policy)), kwargs
     if name in SWITCHED:
         from clamgen.experiments.stall import StallSwitch
 
@@ -282,7 +319,17 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED, *CHUNKED):
+        for name in (
+            *MEMBERS,
+            *MEANS,
+            *STUDENTS,
+            *GUARDED,
+            *SWITCHED,
+            *CROPPED,
+            *CHUNKED,
+            *BURST,
+            *AMPLIFIED,
+        ):
             line = by.get((name, family))
             if line is None:
                 continue
@@ -309,7 +356,17 @@ def main() -> None:
     parser.add_argument(
         "--policies",
         nargs="+",
-        choices=[*MEMBERS, *MEANS, *STUDENTS, *GUARDED, *SWITCHED, *CROPPED, *CHUNKED],
+        choices=[
+            *MEMBERS,
+            *MEANS,
+            *STUDENTS,
+            *GUARDED,
+            *SWITCHED,
+            *CROPPED,
+            *CHUNKED,
+            *BURST,
+            *AMPLIFIED,
+        ],
         default=[*MEMBERS, MEAN],
     )
     parser.add_argument(

@@ -17,6 +17,9 @@ student, regressed on the stalled states of the distillation data only: `offline
 --stalled-only`) while the count is at least `after_steps`. Measured for the 3-view students
 (session 28), such a switch did not help: the escape student, like the students themselves,
 fits the way out of the stalls in its data but does not carry it to new tasks' stalls.
+`StallBurst` leaves a stall at random instead: a few steps of one random joint command, then
+the policy again from wherever they took the arm (the random escapes of randomized
+potential-field planners), needing nothing but the observation's tip and target.
 """
 
 from __future__ import annotations
@@ -25,12 +28,19 @@ from typing import Any
 
 import numpy as np
 
+from clamgen.robot import ur5
+
 PROGRESS_M = 0.005
 """A step makes progress when the tip is this much nearer the target than it has been before in
 the episode (a quarter of the 2 cm success radius)."""
 AFTER_STEPS = 10
 """Default count at which `StallSwitch` hands over: an episode that arrives takes about 20
 steps, nearly all of them nearer than the last."""
+BURST_STEPS = 5
+"""`StallBurst`: steps of one random command per escape (at most 0.25 rad a joint)."""
+BURST_SCALE = 1.0
+"""`StallBurst`: each joint's random command is uniform in [-scale, scale] (of the action's
+range, `MAX_JOINT_DELTA_RAD` a step)."""
 
 
 def tip_distance(obs: dict[str, np.ndarray]) -> float:
@@ -124,4 +134,66 @@ class StallSwitch:
         if self.counter.update(obs) >= self.after_steps:
             self.num_escape_steps += 1
             return self.escape.act(obs)
+        return self.policy.act(obs)
+
+
+class StallBurst:
+    """`policy` acting, with random escapes from stalls: once the stall count (`StallCounter`)
+    reaches `after_steps`, `burst_steps` steps of one random command (each joint uniform in
+    [-`scale`, `scale`]), then `policy` again for at least `after_steps` steps before the next
+    burst (if the count has not restarted by then). The random stream restarts from `seed` at
+    each reset, so an episode acts the same every time. Counts `num_burst_steps` of
+    `num_steps`."""
+
+    def __init__(
+        self,
+        policy,
+        after_steps: int = AFTER_STEPS,
+        burst_steps: int = BURST_STEPS,
+        scale: float = BURST_SCALE,
+        seed: int = 0,
+    ) -> None:
+        if after_steps < 1 or burst_steps < 1:
+            raise ValueError(
+                f"after_steps and burst_steps must be >= 1, got {after_steps}, {burst_steps}"
+            )
+        if not 0.0 < scale <= 1.0:
+            raise ValueError(f"scale must be in (0, 1], got {scale}")
+        self.policy = policy
+        self.after_steps = after_steps
+        self.burst_steps = burst_steps
+        self.scale = scale
+        self.seed = seed
+        self.counter = StallCounter()
+        self.num_steps = 0
+        self.num_burst_steps = 0
+        self._restart()
+
+    @property
+    def agent(self):
+        return getattr(self.policy, "agent", None)
+
+    def reset(self, env: Any | None = None) -> None:
+        self.policy.reset(env)
+        self._restart()
+
+    def _restart(self) -> None:
+        self.counter.reset()
+        self._rng = np.random.default_rng(self.seed)
+        self._command = np.zeros(ur5.NUM_JOINTS)
+        self._left = 0  # steps of the current burst still to take
+        self._since = self.after_steps  # policy steps since the last burst ended
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self.num_steps += 1
+        count = self.counter.update(obs)
+        if not self._left and count >= self.after_steps and self._since >= self.after_steps:
+            self._command = self._rng.uniform(-self.scale, self.scale, ur5.NUM_JOINTS)
+            self._left = self.burst_steps
+        if self._left:
+            self._left -= 1
+            self._since = 0
+            self.num_burst_steps += 1
+            return self._command.astype(np.float32)
+        self._since += 1
         return self.policy.act(obs)
