@@ -9,6 +9,7 @@ from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.pooled import file_lengths, subset
 from clamgen.experiments.stall import (
     PROGRESS_M,
+    StallBurst,
     StallCounter,
     StallSwitch,
     pool_episodes,
@@ -105,3 +106,31 @@ def test_switch_hands_over_while_stalled_and_back_on_progress():
     assert switch.act(_obs(0.3))[0] == 0.1
     with pytest.raises(ValueError, match="after_steps"):
         StallSwitch(policy, escape, after_steps=0)
+
+
+def test_burst_takes_random_steps_once_stalled_then_hands_back():
+    policy = _Constant(0.1)
+    burst = StallBurst(policy, after_steps=2, burst_steps=3, scale=0.5, seed=4)
+    burst.reset()
+    assert policy.resets == 1
+    # counts 0 1 2 3 4 5 6 7 8: stalled from the third state on, never progressing again
+    acted = [burst.act(_obs(0.3)) for _ in range(10)]
+    random_steps = [i for i, a in enumerate(acted) if a[0] != 0.1]
+    # a burst at the third state (3 steps), the policy for 2 steps, then the next burst
+    assert random_steps == [2, 3, 4, 7, 8, 9]
+    assert np.array_equal(acted[2], acted[4]) and not np.array_equal(acted[2], acted[7])
+    assert all(np.abs(acted[i]).max() <= 0.5 for i in random_steps)
+    assert (burst.num_steps, burst.num_burst_steps) == (10, 6)
+    burst.reset()  # the same episode acts the same again
+    again = [burst.act(_obs(0.3)) for _ in range(10)]
+    assert all(np.array_equal(a, b) for a, b in zip(acted, again, strict=True))
+
+
+def test_burst_waits_while_the_episode_progresses():
+    burst = StallBurst(_Constant(0.1), after_steps=2, burst_steps=3)
+    burst.reset()
+    acted = [burst.act(_obs(0.3 - 0.01 * t))[0] for t in range(8)]
+    assert acted == [0.1] * 8 and burst.num_burst_steps == 0
+    for options in ({"after_steps": 0}, {"burst_steps": 0}, {"scale": 0.0}, {"scale": 1.5}):
+        with pytest.raises(ValueError):
+            StallBurst(_Constant(0.1), **options)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from clamgen.experiments.pooled import cache_files
+from clamgen.experiments.pooled import apply_row, cache_files
 
 ZOOM_NAME = "zoom.npy"
 RECORD_NAME = "zoom.json"
@@ -42,9 +42,8 @@ def _rows_of_runs(cache: Path, runs: int) -> int:
 def _render(cache: Path, start: int, stop: int, views: int, size: int, queue) -> None:
     import mujoco
 
-    from clamgen.sim import constants as C
     from clamgen.sim.render import MultiViewRenderer
-    from clamgen.sim.scene import Obstacles, Scene
+    from clamgen.sim.scene import Scene
     from clamgen.sim.state import images_from_render
 
     joints = np.load(cache / "observation.npy", mmap_mode="r")
@@ -56,11 +55,7 @@ def _render(cache: Path, start: int, stop: int, views: int, size: int, queue) ->
     for first in range(start, stop, CHUNK):
         last = min(first + CHUNK, stop)
         for row in range(first, last):
-            poses = np.asarray(obstacles[row], np.float64)
-            kinds = np.where(poses[:, 0] > 0.5, C.OBSTACLE_BOX, C.OBSTACLE_CYLINDER)
-            scene.set_obstacles(Obstacles(kinds, poses[:, 2:5], poses[:, 5:8]))
-            scene.data.mocap_pos[scene.target_mocap] = goals[row]
-            scene.set_joints(np.asarray(joints[row][:6], np.float64))
+            apply_row(scene, joints[row], goals[row], obstacles[row])
             mujoco.mj_camlight(scene.model, scene.data)
             out[row] = images_from_render(*renderer.render(scene.data))
         out.flush()

@@ -200,3 +200,15 @@ def _mapped(per_run: list[tuple[Path, list[Path]]], views: int, cache: Path) -> 
             ckpt.atomic_write(manifest_path, lambda tmp: tmp.write_text(text))
             print(f"pool cached in {cache}")
         return {key: np.load(cache / f"{key}.npy", mmap_mode="r") for key in manifest["keys"]}
+
+
+def apply_row(scene, observation: np.ndarray, goal: np.ndarray, poses: np.ndarray) -> None:
+    """Put `scene` (a `clamgen.sim.scene.Scene`) in the state one pooled row records: the arm's
+    joints (the first 6 of `observation`), the target (`desired_goal`) and the obstacles' poses
+    (a row of `obstacles`, `Obstacles.as_array`). The views
+    rendered from it are the row's cached views (checked bit for bit on cached rows)."""
+    from clamgen.sim.scene import Obstacles
+
+    scene.set_obstacles(Obstacles.from_array(poses))
+    scene.data.mocap_pos[scene.target_mocap] = goal
+    scene.set_joints(np.asarray(observation[:6], np.float64))

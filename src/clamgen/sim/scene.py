@@ -217,6 +217,13 @@ class Obstacles:
             np.float32
         )
 
+    @staticmethod
+    def from_array(array: np.ndarray) -> Obstacles:
+        """The obstacles an `as_array` row set describes (as float64)."""
+        array = np.asarray(array, np.float64).reshape(-1, 8)
+        kinds = np.where(array[:, 0] > 0.5, C.OBSTACLE_BOX, C.OBSTACLE_CYLINDER)
+        return Obstacles(kinds.astype(np.int64), array[:, 2:5].copy(), array[:, 5:8].copy())
+
 
 class Scene:
     """MuJoCo model + data of the scene with names resolved to ids once.
