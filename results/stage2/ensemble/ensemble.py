@@ -71,6 +71,12 @@ defaults but for the options given)."""
 AMPLIFIED = {"3v-s5+amplify": "3v-s5"}
 """Session 29: a 3-view seed whose command, while its episode has stalled 10 steps or more, is
 scaled up until its largest joint command is 1 (`StallSwitch` to `SaturatedPolicy`)."""
+LEARNED_SHIELD = {
+    f"3v-s5+learned{threshold}": ("3v-s5", ROOT / "runs" / "learned-shield" / "3v-s5", threshold)
+    for threshold in ("0.1", "0.3", "0.5")
+}
+"""Session 29: a 3-view seed through a collision head on its own encoding
+(`../shield/learned_shield.py`: its directory, the threshold)."""
 CHUNKED = {"3v-rows147k-chunk+ens": "3v-rows147k-chunk"}
 """Session 28: the chunk student acting with temporal ensembling (`distill/chunks.py`)."""
 STUDENTS = {
@@ -172,10 +178,26 @@ COMPARED = {
     **{name: (policy,) for name, policy in CROPPED.items()},
     **{name: (policy,) for name, (policy, _) in BURST.items()},
     **{name: (policy,) for name, policy in AMPLIFIED.items()},
+    **{name: (policy,) for name, (policy, _, _) in LEARNED_SHIELD.items()},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
+
+
+NAMES = (
+    *MEMBERS,
+    *MEANS,
+    *STUDENTS,
+    *GUARDED,
+    *SWITCHED,
+    *CROPPED,
+    *CHUNKED,
+    *BURST,
+    *AMPLIFIED,
+    *LEARNED_SHIELD,
+)
+"""Every policy by name, in the summary's order."""
 
 
 class MeanActionPolicy:
@@ -260,6 +282,15 @@ def load(name: str):
     if name in CROPPED:
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs
+    if name in LEARNED_SHIELD:
+        import sys
+
+        sys.path.insert(0, str(HERE.parent / "shield"))
+        from learned_shield import HEAD_NAME, LearnedShieldPolicy
+
+        base, directory, threshold = LEARNED_SHIELD[name]
+        policy, kwargs = load(base)
+        return LearnedShieldPolicy(policy.agent, directory / HEAD_NAME, float(threshold)), kwargs
     if name in BURST:
         from clamgen.experiments.stall import StallBurst
 
@@ -319,17 +350,7 @@ def summary(lines: list[dict]) -> None:
 
     by = {(x["policy"], x["family"]): x for x in lines}
     for family in FAMILIES:
-        for name in (
-            *MEMBERS,
-            *MEANS,
-            *STUDENTS,
-            *GUARDED,
-            *SWITCHED,
-            *CROPPED,
-            *CHUNKED,
-            *BURST,
-            *AMPLIFIED,
-        ):
+        for name in NAMES:
             line = by.get((name, family))
             if line is None:
                 continue
@@ -356,17 +377,7 @@ def main() -> None:
     parser.add_argument(
         "--policies",
         nargs="+",
-        choices=[
-            *MEMBERS,
-            *MEANS,
-            *STUDENTS,
-            *GUARDED,
-            *SWITCHED,
-            *CROPPED,
-            *CHUNKED,
-            *BURST,
-            *AMPLIFIED,
-        ],
+        choices=NAMES,
         default=[*MEMBERS, MEAN],
     )
     parser.add_argument(
