@@ -72,8 +72,22 @@ AMPLIFIED = {"3v-s5+amplify": "3v-s5"}
 """Session 29: a 3-view seed whose command, while its episode has stalled 10 steps or more, is
 scaled up until its largest joint command is 1 (`StallSwitch` to `SaturatedPolicy`)."""
 LEARNED_SHIELD = {
-    f"3v-s5+learned{threshold}": ("3v-s5", ROOT / "runs" / "learned-shield" / "3v-s5", threshold)
-    for threshold in ("0.1", "0.3", "0.5")
+    **{
+        f"3v-s5+learned{threshold}": (
+            "3v-s5",
+            ROOT / "runs" / "learned-shield" / "3v-s5",
+            threshold,
+        )
+        for threshold in ("0.1", "0.5")
+    },
+    **{
+        f"3v-s{seed}+learned0.3": (
+            f"3v-s{seed}",
+            ROOT / "runs" / "learned-shield" / f"3v-s{seed}",
+            "0.3",
+        )
+        for seed in (5, 7, 8)
+    },
 }
 """Session 29: a 3-view seed through a collision head on its own encoding
 (`../shield/learned_shield.py`: its directory, the threshold)."""
