@@ -29,7 +29,8 @@ demo: install
 	$(VENV)/bin/clamgen demo --num-episodes 3
 
 test: install
-	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -q
 
 bench: install
