@@ -32,7 +32,8 @@ def test_roc_area_is_the_chance_a_positive_outscores_a_negative():
 
 
 def test_candidates_start_with_the_action_and_stay_in_the_box():
-    module = _module()
+    from clamgen.experiments import learned_shield as module
+
     action = np.array([0.9, -0.2, 0.0, 0.4, -1.0, 0.1], np.float32)
     candidates = module.shield_candidates(action)
     assert candidates.shape == (1 + len(module.SCALES) + 12, 6)

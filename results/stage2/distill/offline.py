@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from chunks import ChunkDistiller, future_labels  # (this directory: the script's own)
+from collisions import CollisionDistiller, load_labels
 from tqdm import tqdm
 
 from clamgen.experiments import checkpoint as ckpt
@@ -160,6 +161,15 @@ def main() -> None:
         "paper), saved as OUT/chunk_head.pt",
     )
     parser.add_argument(
+        "--collision-labels",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also regress a collision head on these states' labelled actions (collisions.py; "
+        "a learned_shield.py prepare output for the same first states; beyond the paper), "
+        "saved as OUT/head.pt",
+    )
+    parser.add_argument(
         "--stalled-only",
         type=int,
         default=None,
@@ -226,7 +236,11 @@ def main() -> None:
         changes[name] = kind(value)
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
-    make = ChunkDistiller if args.chunk else Distiller
+    if args.chunk and args.collision_labels:
+        raise SystemExit("--chunk and --collision-labels each add a head: one at a time")
+    make = Distiller
+    if args.chunk or args.collision_labels:
+        make = ChunkDistiller if args.chunk else CollisionDistiller
     distiller = make(DistillConfig(student=student, distill=settings))
     views = student.env.num_views if args.data_views is None else args.data_views
     relabellers = []
@@ -267,6 +281,11 @@ def main() -> None:
         labels = np.asarray(distiller.data.arrays["label"])
         distiller.attach_chunks(future_labels(labels, episode, args.chunk))
         print(f"chunk head on the next {args.chunk} labels of {len(np.unique(episode))} episodes")
+    if args.collision_labels:
+        if args.stalled_only is not None:
+            raise SystemExit("--collision-labels label the first states: not with --stalled-only")
+        distiller.attach_collisions(*load_labels(args.collision_labels, len(distiller.data)))
+        print(f"collision head on {args.collision_labels}'s labelled actions")
     if args.stalled_only is not None:
         arrays = distiller.data.arrays
         counts = pool_stall_counts(
@@ -290,6 +309,7 @@ def main() -> None:
         **({"rows": rows} if rows is not None else {}),
         **({"zoom": True} if args.zoom else {}),
         **({"chunk": args.chunk} if args.chunk else {}),
+        **({"collision_labels": str(args.collision_labels)} if args.collision_labels else {}),
     }
     loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
@@ -303,7 +323,7 @@ def main() -> None:
         "updates": args.updates,
     }
     ckpt.save_torch(args.out / POLICY_NAME, payload)
-    if args.chunk:
+    if args.chunk or args.collision_labels:
         distiller.save_head(args.out)
     state = {
         "student": distiller.student.state_dict(),
@@ -327,6 +347,7 @@ def main() -> None:
         "rows": rows,
         "zoom": args.zoom,
         "chunk": args.chunk,
+        "collision_labels": str(args.collision_labels) if args.collision_labels else None,
         "changes": changes,
         "updates": args.updates,
         "torch_threads": args.torch_threads or student.loop.torch_threads,

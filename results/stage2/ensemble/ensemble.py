@@ -88,9 +88,15 @@ LEARNED_SHIELD = {
         )
         for seed in (5, 7, 8)
     },
+    "3v-rows147k-coll+head": (
+        "3v-rows147k-coll",
+        ROOT / "runs" / "offline" / "d3-rows147k-coll",
+        "0.3",
+    ),
 }
 """Session 29: a 3-view seed through a collision head on its own encoding
-(`../shield/learned_shield.py`: its directory, the threshold)."""
+(`clamgen.experiments.learned_shield`, fitted by `../shield/learned_shield.py`: its
+directory, the threshold)."""
 CHUNKED = {"3v-rows147k-chunk+ens": "3v-rows147k-chunk"}
 """Session 28: the chunk student acting with temporal ensembling (`distill/chunks.py`)."""
 STUDENTS = {
@@ -149,10 +155,11 @@ STUDENTS = {
     # nearer its target for 10 steps or more), to act where the seeds stall (`SWITCHED`).
     "3v-escape10": str(ROOT / "runs" / "offline" / "d3-escape10" / "policy.pt"),
     # ... and two fresh students on the first two runs' states of the pool, 24000 steps: the
-    # views alone, and the views with their zoomed views (`zoom_pool.py`, `offline.py --zoom`).
+    # views alone, and the views with their zoomed views (`zoom_pool.py`, `offline.py --zoom`);
+    # session 29: one with a collision loss beside the imitation loss (`distill/collisions.py`).
     **{
         f"3v-rows147k-{kind}": str(ROOT / "runs" / "offline" / f"d3-rows147k-{kind}" / "policy.pt")
-        for kind in ("base", "zoom", "chunk")
+        for kind in ("base", "zoom", "chunk", "coll")
     },
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
@@ -193,6 +200,8 @@ COMPARED = {
     **{name: (policy,) for name, (policy, _) in BURST.items()},
     **{name: (policy,) for name, policy in AMPLIFIED.items()},
     **{name: (policy,) for name, (policy, _, _) in LEARNED_SHIELD.items()},
+    "3v-rows147k-coll": ("3v-rows147k-base",),
+    "3v-rows147k-coll+head": ("3v-rows147k-coll", "3v-rows147k-base"),
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
@@ -297,10 +306,7 @@ def load(name: str):
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs
     if name in LEARNED_SHIELD:
-        import sys
-
-        sys.path.insert(0, str(HERE.parent / "shield"))
-        from learned_shield import HEAD_NAME, LearnedShieldPolicy
+        from clamgen.experiments.learned_shield import HEAD_NAME, LearnedShieldPolicy
 
         base, directory, threshold = LEARNED_SHIELD[name]
         policy, kwargs = load(base)

@@ -5,9 +5,10 @@ The depth shield (`clamgen.experiments.depth_shield`) keeps the students' blocke
 rates under the aim, reading each view's depth at 128 pixels. Can the students' own 64-pixel
 encoding tell a colliding step instead? A small head on a frozen student's visual encoding,
 its joints and goal, and a candidate action predicts whether that step collides
-(`CollisionHead`); acting (`LearnedShieldPolicy`), the student's action goes through when the
-head's probability is under `threshold`, else the nearest safe candidate (the action scaled
-down, or moved by `NUDGE` on one joint) or, when none is safe, the least risky one.
+(`clamgen.experiments.learned_shield.CollisionHead`); acting (`LearnedShieldPolicy` there),
+the student's action goes through when the head's probability is under a threshold, else the
+nearest safe candidate (the action scaled down, or moved on one joint) or, when none is safe,
+the least risky one.
 
     python results/stage2/shield/learned_shield.py prepare POLICY CACHE OUT --rows N
     python results/stage2/shield/learned_shield.py fit OUT
@@ -34,60 +35,23 @@ import torch
 from tqdm import tqdm
 
 from clamgen.experiments import checkpoint as ckpt
+from clamgen.experiments.learned_shield import (
+    FEATURES,
+    HEAD_KIND,
+    HEAD_NAME,
+    CollisionHead,
+    student_features,
+)
 from clamgen.experiments.pooled import apply_row, cache_files
 
 CANDIDATES = ("student", "student+0.3", "label", "label+0.3", "label+0.6", "uniform")
 """Actions labelled per state: the student's own, the teacher's (the tanh of the cache's
 pre-squash label), each with Gaussian noise (std 0.3, 0.6 for the teacher's; clipped), and one
 uniform in the action box."""
-HIDDEN = 256
 EPOCHS = 8
 BATCH = 1024
 LR = 1e-3
 SEED = 0
-THRESHOLD = 0.5
-SCALES = (0.5, 0.25)
-"""`LearnedShieldPolicy`'s candidates: the action scaled by these ..."""
-NUDGE = 0.5
-"""... and moved by this much (of the action range) on one joint either way, clipped."""
-HEAD_NAME = "head.pt"
-
-
-class CollisionHead(torch.nn.Module):
-    """(student's features (B, D), action (B, A)) -> the logit of the step colliding (B,)."""
-
-    def __init__(self, features: int, action_dim: int) -> None:
-        super().__init__()
-        self.net = torch.nn.Sequential(
-            torch.nn.Linear(features + action_dim, HIDDEN),
-            torch.nn.ReLU(),
-            torch.nn.Linear(HIDDEN, HIDDEN),
-            torch.nn.ReLU(),
-            torch.nn.Linear(HIDDEN, 1),
-        )
-
-    def forward(self, features: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.net(torch.cat([features, action], -1)).squeeze(-1)
-
-
-FEATURES = ("encoding", "projections")
-"""What the head reads of the student beside its normalised joints and goal: its visual
-encoding (`feature_dim`), or each view's projection in the encoder's first dense layer (V x
-`hidden_dim`: the conv maps before the views are summed and squeezed into the encoding)."""
-
-
-def student_features(
-    agent, obs: dict, kind: str = "encoding"
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(features (B, D) of `kind` (`FEATURES`) with the normalised joints + goal, the actor's
-    low-dim view, the visual encoding) of a batch of observations, centre crops as when
-    acting; the encoding is the one the student acts on (the same operations)."""
-    encoder = agent.critic.encoder
-    projections = encoder.project(encoder.conv_trunk(agent._visual(obs, train=False)))
-    visual = encoder.merge_projected(projections)
-    state = agent._state(obs)
-    seen = visual if kind == "encoding" else projections.flatten(1)
-    return torch.cat([seen, state], -1), agent._actor_view(state), visual
 
 
 # ------------------------------------------------------------------------------- prepare
@@ -245,7 +209,7 @@ def fit(out: Path, epochs: int = EPOCHS, name: str = HEAD_NAME) -> None:
         out / name,
         {
             "format": ckpt.FORMAT,
-            "kind": "collision-head",
+            "kind": HEAD_KIND,
             "reads": record.get("features", "encoding"),
             "features": features.shape[1],
             "action_dim": actions.shape[2],
@@ -253,57 +217,6 @@ def fit(out: Path, epochs: int = EPOCHS, name: str = HEAD_NAME) -> None:
         },
     )
     print(json.dumps({k: v for k, v in report.items() if k != "candidates"}, indent=1))
-
-
-# --------------------------------------------------------------------------------- acting
-def shield_candidates(action: np.ndarray) -> np.ndarray:
-    """(K, A): the action, scaled by `SCALES`, moved by `NUDGE` on each joint either way."""
-    a = len(action)
-    nudges = np.concatenate([np.eye(a), -np.eye(a)]) * NUDGE + action
-    return np.clip(
-        np.concatenate([action[None], np.outer(SCALES, action), nudges]), -1.0, 1.0
-    ).astype(np.float32)
-
-
-class LearnedShieldPolicy:
-    """A student acting through its collision head (a `Policy`): its action when the head
-    says it collides with probability under `threshold`, else the candidate
-    (`shield_candidates`) nearest to it among those under `threshold`, else the least risky.
-    Counts `num_shielded` of `num_steps`."""
-
-    def __init__(self, agent, head_path: Path, threshold: float = THRESHOLD) -> None:
-        saved = ckpt.load_torch(head_path, kind="collision-head")
-        self.agent = agent
-        self.head = CollisionHead(saved["features"], saved["action_dim"])
-        self.head.load_state_dict(saved["state"])
-        self.reads = saved["reads"]
-        self.threshold = threshold
-        self.num_steps = self.num_shielded = 0
-
-    def reset(self, env=None) -> None:
-        pass
-
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        self.num_steps += 1
-        batch = {k: np.asarray(v)[None] for k, v in obs.items()}
-        with torch.inference_mode():
-            features, low_dim, visual = student_features(self.agent, batch, self.reads)
-            action = torch.tanh(self.agent._pre_squash(visual, low_dim)[0])[0].numpy()
-            if (
-                torch.sigmoid(self.head(features, torch.as_tensor(action[None])))[0]
-                < self.threshold
-            ):
-                return action
-            candidates = shield_candidates(action)
-            risk = torch.sigmoid(
-                self.head(features.expand(len(candidates), -1), torch.as_tensor(candidates))
-            ).numpy()
-        self.num_shielded += 1
-        safe = np.flatnonzero(risk < self.threshold)
-        if len(safe) == 0:
-            return candidates[int(np.argmin(risk))]
-        distance = np.linalg.norm(candidates[safe] - action, axis=1)
-        return candidates[safe[int(np.argmin(distance))]]
 
 
 def main() -> None:
