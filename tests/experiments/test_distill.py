@@ -390,3 +390,48 @@ def test_pose_head_starts_from_the_distill_seed(tmp_path, base_policy, teacher):
         heads.append(Distiller(config).pose_head.weight.detach())
     assert torch.equal(heads[0], heads[1])
     assert not torch.equal(heads[0], heads[2])
+
+
+def test_collision_head_learns_beside_the_student_and_acts_as_a_shield(
+    tmp_path, base_policy, teacher
+):
+    import importlib.util
+    from pathlib import Path
+
+    from clamgen.experiments.learned_shield import HEAD_NAME, LearnedShieldPolicy
+
+    path = Path(__file__).resolve().parents[2] / "results" / "stage2" / "distill" / "collisions.py"
+    spec = importlib.util.spec_from_file_location("collisions", path)
+    collisions = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(collisions)
+
+    config = distill_config(tmp_path, base_policy, teacher)
+    distiller = collisions.CollisionDistiller(config)
+    chunk, _ = distiller.collect_iteration(1.0, 0, show_progress=False)
+    distiller.data.add(chunk)
+    n = len(distiller.data)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (n, 4, 6)).astype(np.float32)
+    collided = actions[..., 0] > 0.3  # a rule the head can learn from the action alone
+    distiller.attach_collisions(actions, collided)
+    index = np.arange(n)
+    obs, _ = distiller.data.batch(index)
+
+    def head_loss() -> float:
+        with torch.no_grad():
+            visual = distiller.student.critic.encoder(distiller.student._visual(obs, False))
+            return float(distiller.extra_loss(index, obs, visual))
+
+    # The collision loss's gradient reaches the encoder through the encoding it is given.
+    encoder = distiller.student.critic.encoder
+    encoder.zero_grad(set_to_none=True)
+    distiller.extra_loss(index, obs, encoder(distiller.student._visual(obs, False))).backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in encoder.parameters())
+    before = head_loss()
+    distiller.regress(80, 0, show_progress=False)
+    assert head_loss() < before
+    distiller.save_head(tmp_path)
+    shield = LearnedShieldPolicy(distiller.student, tmp_path / HEAD_NAME, threshold=0.5)
+    data = distiller.data.arrays
+    state = {k: data[k][0] for k in ("images", "observation", "achieved_goal", "desired_goal")}
+    assert shield.act(state).shape == (6,) and shield.num_steps == 1
