@@ -1,3 +1,24 @@
+import importlib.util
 import os
+from pathlib import Path
+
+import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def results_script():
+    """Import a script under results/ by its path there (e.g. "stage2/distill/chunks.py"):
+    they are files of the repository, not of the package."""
+
+    def load(relative: str):
+        path = ROOT / "results" / relative
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load

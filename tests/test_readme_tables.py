@@ -60,18 +60,8 @@ def test_baseline_rows_are_in_the_readme(name):
     assert name in {_row_name(line) for line in readme_table2()}
 
 
-def _shipped_seeds():
-    import importlib.util
-
-    path = ROOT / "results" / "stage2" / "ensemble" / "shipped_seeds.py"
-    spec = importlib.util.spec_from_file_location("shipped_seeds", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_readme_aims_table_is_the_committed_results():
-    aims = _shipped_seeds().aims_table()
+def test_readme_aims_table_is_the_committed_results(results_script):
+    aims = results_script("stage2/ensemble/shipped_seeds.py").aims_table()
     committed = (ROOT / "results" / "stage2" / "ensemble" / "aims.md").read_text()
     assert committed == aims + "\n"
     assert aims in (ROOT / "README.md").read_text()

@@ -2,25 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
-
-HERE = Path(__file__).resolve().parents[2] / "results" / "stage2" / "distill"
-
-
-def _chunks():
-    spec = importlib.util.spec_from_file_location("chunks", HERE / "chunks.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+import pytest
 
 
-def test_future_labels_follow_each_episode_and_hold_its_last():
+@pytest.fixture
+def chunks(results_script):
+    return results_script("stage2/distill/chunks.py")
+
+
+def test_future_labels_follow_each_episode_and_hold_its_last(chunks):
     labels = np.arange(7, dtype=np.float32)[:, None] * np.ones((1, 2), np.float32)
     episode = np.array([0, 1, 0, 1, 0, 0, 1])  # two interleaved episodes, rows in step order
-    future = _chunks().future_labels(labels, episode, 2)[:, :, 0]
+    future = chunks.future_labels(labels, episode, 2)[:, :, 0]
     np.testing.assert_array_equal(future, [[2, 4], [3, 6], [4, 5], [6, 6], [5, 5], [5, 5], [6, 6]])
 
 

@@ -393,17 +393,11 @@ def test_pose_head_starts_from_the_distill_seed(tmp_path, base_policy, teacher):
 
 
 def test_collision_head_learns_beside_the_student_and_acts_as_a_shield(
-    tmp_path, base_policy, teacher
+    tmp_path, base_policy, teacher, results_script
 ):
-    import importlib.util
-    from pathlib import Path
-
     from clamgen.experiments.learned_shield import HEAD_NAME, LearnedShieldPolicy
 
-    path = Path(__file__).resolve().parents[2] / "results" / "stage2" / "distill" / "collisions.py"
-    spec = importlib.util.spec_from_file_location("collisions", path)
-    collisions = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(collisions)
+    collisions = results_script("stage2/distill/collisions.py")
 
     config = distill_config(tmp_path, base_policy, teacher)
     distiller = collisions.CollisionDistiller(config)

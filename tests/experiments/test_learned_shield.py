@@ -3,32 +3,26 @@ restore of pooled rows it labels with."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+import pytest
 
 from clamgen.experiments.pooled import apply_row
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles, Scene
 
-HERE = Path(__file__).resolve().parents[2] / "results" / "stage2" / "shield"
+
+@pytest.fixture
+def script(results_script):
+    return results_script("stage2/shield/learned_shield.py")
 
 
-def _module():
-    spec = importlib.util.spec_from_file_location("learned_shield", HERE / "learned_shield.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_roc_area_is_the_chance_a_positive_outscores_a_negative():
+def test_roc_area_is_the_chance_a_positive_outscores_a_negative(script):
     rng = np.random.default_rng(0)
     scores = rng.normal(size=60).round(1)  # ties count one half
     positive = rng.random(60) < 0.3
     pairs = scores[positive][:, None] - scores[~positive][None, :]
     expected = np.mean((pairs > 0) + 0.5 * (pairs == 0))
-    assert np.isclose(_module().roc_auc(scores, positive), expected)
+    assert np.isclose(script.roc_auc(scores, positive), expected)
 
 
 def test_candidates_start_with_the_action_and_stay_in_the_box():
@@ -43,8 +37,8 @@ def test_candidates_start_with_the_action_and_stay_in_the_box():
     assert candidates[1 + len(module.SCALES), 0] == 1.0  # 0.9 + 0.5, clipped
 
 
-def test_labelled_actions_follow_their_kinds():
-    module = _module()
+def test_labelled_actions_follow_their_kinds(script):
+    module = script
     rng = np.random.default_rng(1)
     student = rng.uniform(-1, 1, (5, 6)).astype(np.float32)
     teacher = rng.uniform(-1, 1, (5, 6)).astype(np.float32)
