@@ -429,3 +429,44 @@ def test_collision_head_learns_beside_the_student_and_acts_as_a_shield(
     data = distiller.data.arrays
     state = {k: data[k][0] for k in ("images", "observation", "achieved_goal", "desired_goal")}
     assert shield.act(state).shape == (6,) and shield.num_steps == 1
+
+
+def test_bin_head_learns_the_labels_bins_and_acts(tmp_path, base_policy, teacher, results_script):
+    bins = results_script("stage2/distill/bins.py")
+    distiller = bins.BinDistiller(distill_config(tmp_path, base_policy, teacher))
+    chunk, _ = distiller.collect_iteration(1.0, 0, show_progress=False)
+    distiller.data.add(chunk)
+    distiller.attach_bins(3)
+    labels = np.asarray(distiller.data.arrays["label"])
+    centres = distiller.bin_head.centres.numpy()
+    assert centres.shape == (3, 6)
+    # each label's bin is its nearest centre
+    nearest = ((labels[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
+    np.testing.assert_array_equal(distiller.assignment.numpy(), nearest)
+    index = np.arange(len(distiller.data))
+    obs, _ = distiller.data.batch(index)
+
+    def bin_loss() -> float:
+        with torch.no_grad():
+            visual = distiller.student.critic.encoder(distiller.student._visual(obs, False))
+            return float(distiller.extra_loss(index, obs, visual))
+
+    before = bin_loss()
+    distiller.regress(80, 0, show_progress=False)
+    assert bin_loss() < before
+    distiller.save_head(tmp_path)
+    policy = bins.BinPolicy(distiller.student, tmp_path / bins.HEAD_NAME)
+    data = distiller.data.arrays
+    state = {k: data[k][0] for k in ("images", "observation", "achieved_goal", "desired_goal")}
+    action = policy.act(state)
+    assert action.shape == (6,) and np.abs(action).max() <= 1.0
+
+
+def test_kmeans_finds_separated_clusters(results_script):
+    bins = results_script("stage2/distill/bins.py")
+    rng = np.random.default_rng(0)
+    truth = np.array([[-2.0] * 6, [0.0] * 6, [2.0] * 6])
+    points = np.concatenate([c + 0.05 * rng.normal(size=(200, 6)) for c in truth])
+    centres = bins.kmeans(points, 3, seed=1)
+    np.testing.assert_allclose(np.sort(centres[:, 0]), truth[:, 0], atol=0.02)
+    assert len(np.unique(bins.nearest(points, centres))) == 3

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from bins import BinDistiller
 from chunks import ChunkDistiller, future_labels  # (this directory: the script's own)
 from collisions import CollisionDistiller, load_labels
 from tqdm import tqdm
@@ -161,6 +162,14 @@ def main() -> None:
         "paper), saved as OUT/chunk_head.pt",
     )
     parser.add_argument(
+        "--bins",
+        type=int,
+        default=None,
+        metavar="K",
+        help="also regress a bin head: the labels as a choice among K k-means centres with an "
+        "offset (bins.py; beyond the paper), saved as OUT/bin_head.pt",
+    )
+    parser.add_argument(
         "--collision-labels",
         type=Path,
         default=None,
@@ -236,11 +245,15 @@ def main() -> None:
         changes[name] = kind(value)
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
-    if args.chunk and args.collision_labels:
-        raise SystemExit("--chunk and --collision-labels each add a head: one at a time")
-    make = Distiller
-    if args.chunk or args.collision_labels:
-        make = ChunkDistiller if args.chunk else CollisionDistiller
+    heads = {  # options that regress another head beside the student, and their distillers
+        "--chunk": (args.chunk, ChunkDistiller),
+        "--bins": (args.bins, BinDistiller),
+        "--collision-labels": (args.collision_labels, CollisionDistiller),
+    }
+    chosen = [name for name, (value, _) in heads.items() if value]
+    if len(chosen) > 1:
+        raise SystemExit(f"{' and '.join(chosen)} each add a head: one at a time")
+    make = heads[chosen[0]][1] if chosen else Distiller
     distiller = make(DistillConfig(student=student, distill=settings))
     views = student.env.num_views if args.data_views is None else args.data_views
     relabellers = []
@@ -281,6 +294,13 @@ def main() -> None:
         labels = np.asarray(distiller.data.arrays["label"])
         distiller.attach_chunks(future_labels(labels, episode, args.chunk))
         print(f"chunk head on the next {args.chunk} labels of {len(np.unique(episode))} episodes")
+    if args.bins:
+        if args.stalled_only is not None:
+            raise SystemExit(
+                "--bins fits its centres on the regression's states: not with --stalled-only"
+            )
+        distiller.attach_bins(args.bins)
+        print(f"bin head on {args.bins} k-means centres of the labels")
     if args.collision_labels:
         if args.stalled_only is not None:
             raise SystemExit("--collision-labels label the first states: not with --stalled-only")
@@ -310,6 +330,7 @@ def main() -> None:
         **({"zoom": True} if args.zoom else {}),
         **({"chunk": args.chunk} if args.chunk else {}),
         **({"collision_labels": str(args.collision_labels)} if args.collision_labels else {}),
+        **({"bins": args.bins} if args.bins else {}),
     }
     loss = regress_resumably(distiller, args.updates, args.out, job)
     scores = distiller.validate()
@@ -323,7 +344,7 @@ def main() -> None:
         "updates": args.updates,
     }
     ckpt.save_torch(args.out / POLICY_NAME, payload)
-    if args.chunk or args.collision_labels:
+    if chosen:
         distiller.save_head(args.out)
     state = {
         "student": distiller.student.state_dict(),
@@ -348,6 +369,7 @@ def main() -> None:
         "zoom": args.zoom,
         "chunk": args.chunk,
         "collision_labels": str(args.collision_labels) if args.collision_labels else None,
+        "bins": args.bins,
         "changes": changes,
         "updates": args.updates,
         "torch_threads": args.torch_threads or student.loop.torch_threads,

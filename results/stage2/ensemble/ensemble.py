@@ -98,6 +98,8 @@ LEARNED_SHIELD = {
 (`clamgen.experiments.learned_shield`, fitted by `../shield/learned_shield.py`: its
 directory, the threshold)."""
 CHUNKED = {"3v-rows147k-chunk+ens": "3v-rows147k-chunk"}
+BINNED = {"3v-rows147k-bins+head": "3v-rows147k-bins"}
+"""Session 29: the bin student acting with its bin head (`distill/bins.py`)."""
 """Session 28: the chunk student acting with temporal ensembling (`distill/chunks.py`)."""
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
@@ -156,10 +158,11 @@ STUDENTS = {
     "3v-escape10": str(ROOT / "runs" / "offline" / "d3-escape10" / "policy.pt"),
     # ... and two fresh students on the first two runs' states of the pool, 24000 steps: the
     # views alone, and the views with their zoomed views (`zoom_pool.py`, `offline.py --zoom`);
-    # session 29: one with a collision loss beside the imitation loss (`distill/collisions.py`).
+    # session 29: one with a collision loss beside the imitation loss (`distill/collisions.py`)
+    # and one with a bin head (`distill/bins.py`).
     **{
         f"3v-rows147k-{kind}": str(ROOT / "runs" / "offline" / f"d3-rows147k-{kind}" / "policy.pt")
-        for kind in ("base", "zoom", "chunk", "coll")
+        for kind in ("base", "zoom", "chunk", "coll", "bins")
     },
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
@@ -201,6 +204,8 @@ COMPARED = {
     **{name: (policy,) for name, policy in AMPLIFIED.items()},
     **{name: (policy,) for name, (policy, _, _) in LEARNED_SHIELD.items()},
     "3v-rows147k-coll": ("3v-rows147k-base",),
+    "3v-rows147k-bins": ("3v-rows147k-base",),
+    "3v-rows147k-bins+head": ("3v-rows147k-bins", "3v-rows147k-base"),
     "3v-rows147k-coll+head": ("3v-rows147k-coll", "3v-rows147k-base"),
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
@@ -216,6 +221,7 @@ NAMES = (
     *SWITCHED,
     *CROPPED,
     *CHUNKED,
+    *BINNED,
     *BURST,
     *AMPLIFIED,
     *LEARNED_SHIELD,
@@ -302,6 +308,14 @@ def load(name: str):
         policy, kwargs = load(CHUNKED[name])
         head = Path(STUDENTS[CHUNKED[name]]).parent / HEAD_NAME
         return ChunkEnsemblePolicy(policy.agent, head), kwargs
+    if name in BINNED:
+        import sys
+
+        sys.path.insert(0, str(HERE.parent / "distill"))
+        from bins import HEAD_NAME, BinPolicy
+
+        policy, kwargs = load(BINNED[name])
+        return BinPolicy(policy.agent, Path(STUDENTS[BINNED[name]]).parent / HEAD_NAME), kwargs
     if name in CROPPED:
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs
