@@ -1,5 +1,6 @@
 """DAgger from a privileged residual into a vision residual, end to end on tiny budgets."""
 
+import copy
 import dataclasses
 import itertools
 import json
@@ -470,3 +471,18 @@ def test_kmeans_finds_separated_clusters(results_script):
     centres = bins.kmeans(points, 3, seed=1)
     np.testing.assert_allclose(np.sort(centres[:, 0]), truth[:, 0], atol=0.02)
     assert len(np.unique(bins.nearest(points, centres))) == 3
+
+
+def test_added_heads_start_from_the_seed_and_resume_with_the_regression(
+    tmp_path, base_policy, teacher
+):
+    config = distill_config(tmp_path, base_policy, teacher)
+    first, second = Distiller(config), Distiller(config)
+    heads = [d.add_head("extra", lambda: torch.nn.Linear(3, 2)) for d in (first, second)]
+    torch.testing.assert_close(heads[0].weight, heads[1].weight)
+    assert any(heads[0].weight is p for g in first.optimizer.param_groups for p in g["params"])
+    state = copy.deepcopy(first.regression_state())  # (as saved to a file)
+    with torch.no_grad():
+        heads[0].weight.add_(1.0)
+    first.load_regression_state(state)
+    torch.testing.assert_close(heads[0].weight, heads[1].weight)

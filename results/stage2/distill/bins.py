@@ -15,7 +15,6 @@ decisive choice where the mean would average.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -96,14 +95,8 @@ class BinDistiller(Distiller):
         labels = np.asarray(self.data.arrays["label"])
         centres = kmeans(labels, bins, self.config.distill.seed)
         self.assignment = torch.as_tensor(nearest(labels, centres))
-        probe = self.student.actor.features(
-            torch.zeros(1, self.student.feature_dim),
-            torch.zeros(1, self.student.config.encoder.low_dim_input),
-        )
-        with torch.random.fork_rng(devices=[]):  # its initial weights from the distill seed
-            torch.manual_seed(self.config.distill.seed)
-            self.bin_head = BinHead(probe.shape[1], centres)
-        self.optimizer.add_param_group({"params": list(self.bin_head.parameters())})
+        width = self.actor_features_dim()
+        self.bin_head = self.add_head("bin_head", lambda: BinHead(width, centres))
 
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
         rows = torch.as_tensor(index)
@@ -113,13 +106,6 @@ class BinDistiller(Distiller):
         chosen = offsets[torch.arange(len(rows)), target]
         offset_error = torch.mean((chosen - (labels - self.bin_head.centres[target])) ** 2)
         return BIN_WEIGHT * (torch.nn.functional.cross_entropy(logits, target) + offset_error)
-
-    def regression_state(self) -> dict[str, Any]:
-        return {**super().regression_state(), "bin_head": self.bin_head.state_dict()}
-
-    def load_regression_state(self, state: dict[str, Any]) -> None:
-        super().load_regression_state(state)
-        self.bin_head.load_state_dict(state["bin_head"])
 
     def save_head(self, out: Path) -> None:
         ckpt.save_torch(

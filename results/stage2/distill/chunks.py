@@ -15,7 +15,6 @@ it.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -67,26 +66,15 @@ class ChunkDistiller(Distiller):
 
     def attach_chunks(self, future: np.ndarray) -> None:
         self.future = future
-        probe = self.student.actor.features(
-            torch.zeros(1, self.student.feature_dim),
-            torch.zeros(1, self.student.config.encoder.low_dim_input),
+        width = self.actor_features_dim()
+        self.chunk_head = self.add_head(
+            "chunk_head", lambda: ChunkHead(width, future.shape[1], future.shape[2])
         )
-        with torch.random.fork_rng(devices=[]):  # its initial weights from the distill seed
-            torch.manual_seed(self.config.distill.seed)
-            self.chunk_head = ChunkHead(probe.shape[1], future.shape[1], future.shape[2])
-        self.optimizer.add_param_group({"params": list(self.chunk_head.parameters())})
 
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
         target = torch.as_tensor(self.future[index])
         predicted = self.chunk_head(_features(self.student, obs, visual))
         return CHUNK_WEIGHT * torch.mean((predicted - target) ** 2)
-
-    def regression_state(self) -> dict[str, Any]:
-        return {**super().regression_state(), "chunk_head": self.chunk_head.state_dict()}
-
-    def load_regression_state(self, state: dict[str, Any]) -> None:
-        super().load_regression_state(state)
-        self.chunk_head.load_state_dict(state["chunk_head"])
 
     def save_head(self, out: Path) -> None:
         ckpt.save_torch(

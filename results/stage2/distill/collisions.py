@@ -16,7 +16,6 @@ the student can also act through it (`LearnedShieldPolicy`).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -48,10 +47,9 @@ class CollisionDistiller(Distiller):
         self.actions = torch.as_tensor(actions)
         self.collided = torch.as_tensor(collided).float()
         features = self.student.feature_dim + self.student.config.encoder.low_dim_input
-        with torch.random.fork_rng(devices=[]):  # its initial weights from the distill seed
-            torch.manual_seed(self.config.distill.seed)
-            self.collision_head = CollisionHead(features, actions.shape[2])
-        self.optimizer.add_param_group({"params": list(self.collision_head.parameters())})
+        self.collision_head = self.add_head(
+            "collision_head", lambda: CollisionHead(features, actions.shape[2])
+        )
 
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
         rows = torch.as_tensor(index)
@@ -63,13 +61,6 @@ class CollisionDistiller(Distiller):
         )
         loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, collided.reshape(-1))
         return WEIGHT * loss
-
-    def regression_state(self) -> dict[str, Any]:
-        return {**super().regression_state(), "collision_head": self.collision_head.state_dict()}
-
-    def load_regression_state(self, state: dict[str, Any]) -> None:
-        super().load_regression_state(state)
-        self.collision_head.load_state_dict(state["collision_head"])
 
     def save_head(self, out: Path) -> None:
         first = self.collision_head.net[0]

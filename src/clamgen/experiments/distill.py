@@ -307,6 +307,7 @@ class Distiller:
             *(self.pose_head.parameters() if self._pose_loss_on() else ()),
         ]
         self.optimizer = torch.optim.Adam(params, lr=settings.lr)
+        self.heads: dict[str, torch.nn.Module] = {}  # `add_head`'s, by name
         self.rng = np.random.default_rng([settings.seed, 1])
         self.data = _Dataset(self.keys)
         self._weights_cdf = np.zeros(0)  # near_target_weight's, for the data's current size
@@ -512,6 +513,25 @@ class Distiller:
             group["lr"] = lr
         return loss_value
 
+    def add_head(self, name: str, build) -> torch.nn.Module:
+        """Another head regressed beside the student (for `extra_loss`): `build()` makes it with
+        its initial weights from the distill seed, its parameters join the optimizer, and its
+        weights are kept in the regression state under `name`. Returns it."""
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(self.config.distill.seed)
+            head = build()
+        self.optimizer.add_param_group({"params": list(head.parameters())})
+        self.heads[name] = head
+        return head
+
+    def actor_features_dim(self) -> int:
+        """Width of the student's actor features (what heads on them read)."""
+        probe = self.student.actor.features(
+            torch.zeros(1, self.student.feature_dim),
+            torch.zeros(1, self.student.config.encoder.low_dim_input),
+        )
+        return probe.shape[1]
+
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
         """A further term of the regression loss on the batch of states `index` (`obs`, the
         student's visual encoding of them); None: none. For subclasses that train another
@@ -590,13 +610,14 @@ class Distiller:
         }
 
     def regression_state(self) -> dict[str, Any]:
-        """What `regress` changes: the student's and pose head's weights, the optimizer and the
-        batch stream (the student's state holds its own random generator)."""
+        """What `regress` changes: the student's, pose head's and added heads' weights, the
+        optimizer and the batch stream (the student's state holds its own random generator)."""
         return {
             "student": self.student.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "pose_head": self.pose_head.state_dict(),
             "rng": self.rng.bit_generator.state,
+            **{name: head.state_dict() for name, head in self.heads.items()},
         }
 
     def load_regression_state(self, state: dict[str, Any]) -> None:
@@ -605,6 +626,8 @@ class Distiller:
         self.optimizer.load_state_dict(state["optimizer"])
         self.pose_head.load_state_dict(state["pose_head"])
         self.rng.bit_generator.state = state["rng"]
+        for name, head in self.heads.items():
+            head.load_state_dict(state[name])
 
     def load_resume_state(self, state: dict[str, Any]) -> None:
         """Restore what `resume_state` saved (the data is added by the caller)."""
