@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.distill import Distiller
+from clamgen.experiments.distill import Distiller, actor_features
 
 BIN_WEIGHT = 1.0  # of the bin loss (cross-entropy + offset error) beside the imitation loss
 HIDDEN = 256
@@ -84,10 +84,6 @@ class BinHead(torch.nn.Module):
         return self.centres[best] + offsets[rows, best]
 
 
-def _features(agent, obs: dict, visual: torch.Tensor) -> torch.Tensor:
-    return agent.actor.features(visual, agent._actor_view(agent._state(obs)))
-
-
 class BinDistiller(Distiller):
     """A `Distiller` that regresses a bin head beside the student on its data's labels."""
 
@@ -102,7 +98,7 @@ class BinDistiller(Distiller):
         rows = torch.as_tensor(index)
         target = self.assignment[rows]
         labels = torch.as_tensor(np.asarray(self.data.arrays["label"][index]))
-        logits, offsets = self.bin_head(_features(self.student, obs, visual))
+        logits, offsets = self.bin_head(actor_features(self.student, obs, visual))
         chosen = offsets[torch.arange(len(rows)), target]
         offset_error = torch.mean((chosen - (labels - self.bin_head.centres[target])) ** 2)
         return BIN_WEIGHT * (torch.nn.functional.cross_entropy(logits, target) + offset_error)
@@ -138,5 +134,5 @@ class BinPolicy:
         batch = {k: np.asarray(v)[None] for k, v in obs.items()}
         with torch.inference_mode():
             visual = agent.critic.encoder(agent._visual(batch, train=False))
-            pre_squash = self.head.action(_features(agent, batch, visual))
+            pre_squash = self.head.action(actor_features(agent, batch, visual))
         return np.tanh(pre_squash[0].numpy()).astype(np.float32)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.distill import Distiller
+from clamgen.experiments.distill import Distiller, actor_features
 from clamgen.experiments.stall import episode_rows
 
 CHUNK_WEIGHT = 1.0  # of the chunk loss (mean squared error, pre-squash) beside the imitation loss
@@ -56,10 +56,6 @@ class ChunkHead(torch.nn.Module):
         return self.net(features).view(-1, self.steps, self.action_dim)
 
 
-def _features(agent, obs: dict, visual: torch.Tensor) -> torch.Tensor:
-    return agent.actor.features(visual, agent._actor_view(agent._state(obs)))
-
-
 class ChunkDistiller(Distiller):
     """A `Distiller` that regresses a chunk head beside the student on `future` (N, steps, A),
     the next labels of each state of its data (`future_labels`)."""
@@ -73,7 +69,7 @@ class ChunkDistiller(Distiller):
 
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
         target = torch.as_tensor(self.future[index])
-        predicted = self.chunk_head(_features(self.student, obs, visual))
+        predicted = self.chunk_head(actor_features(self.student, obs, visual))
         return CHUNK_WEIGHT * torch.mean((predicted - target) ** 2)
 
     def save_head(self, out: Path) -> None:

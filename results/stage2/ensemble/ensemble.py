@@ -97,10 +97,14 @@ LEARNED_SHIELD = {
 """Session 29: a 3-view seed through a collision head on its own encoding
 (`clamgen.experiments.learned_shield`, fitted by `../shield/learned_shield.py`: its
 directory, the threshold)."""
-CHUNKED = {"3v-rows147k-chunk+ens": "3v-rows147k-chunk"}
-BINNED = {"3v-rows147k-bins+head": "3v-rows147k-bins"}
-"""Session 29: the bin student acting with its bin head (`distill/bins.py`)."""
-"""Session 28: the chunk student acting with temporal ensembling (`distill/chunks.py`)."""
+HEADED = {
+    "3v-rows147k-chunk+ens": ("3v-rows147k-chunk", "chunks", "ChunkEnsemblePolicy"),
+    "3v-rows147k-bins+head": ("3v-rows147k-bins", "bins", "BinPolicy"),
+}
+"""Students acting through a head regressed beside them (`../distill/MODULE.py`: the student,
+the module, its policy class, which reads the module's `HEAD_NAME` beside the student's
+policy file): session 28's chunk student with temporal ensembling, session 29's bin student
+with its bin head."""
 STUDENTS = {
     "distilled": str(ROOT / "runs" / "offline" / "d3-ens" / "policy.pt"),
     "pooled": str(ROOT / "runs" / "offline" / "d3-pool" / "policy.pt"),
@@ -220,8 +224,7 @@ NAMES = (
     *GUARDED,
     *SWITCHED,
     *CROPPED,
-    *CHUNKED,
-    *BINNED,
+    *HEADED,
     *BURST,
     *AMPLIFIED,
     *LEARNED_SHIELD,
@@ -299,23 +302,16 @@ def load(name: str):
         return guard.wrap(
             policy, kwargs["num_views"], kwargs["image_size"]
         ), kwargs | guard.env_kwargs()
-    if name in CHUNKED:
+    if name in HEADED:
+        import importlib
         import sys
 
+        student, module, policy_class = HEADED[name]
         sys.path.insert(0, str(HERE.parent / "distill"))
-        from chunks import HEAD_NAME, ChunkEnsemblePolicy
-
-        policy, kwargs = load(CHUNKED[name])
-        head = Path(STUDENTS[CHUNKED[name]]).parent / HEAD_NAME
-        return ChunkEnsemblePolicy(policy.agent, head), kwargs
-    if name in BINNED:
-        import sys
-
-        sys.path.insert(0, str(HERE.parent / "distill"))
-        from bins import HEAD_NAME, BinPolicy
-
-        policy, kwargs = load(BINNED[name])
-        return BinPolicy(policy.agent, Path(STUDENTS[BINNED[name]]).parent / HEAD_NAME), kwargs
+        module = importlib.import_module(module)
+        policy, kwargs = load(student)
+        head = Path(STUDENTS[student]).parent / module.HEAD_NAME
+        return getattr(module, policy_class)(policy.agent, head), kwargs
     if name in CROPPED:
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs

@@ -72,9 +72,8 @@ def _actions(student: np.ndarray, teacher: np.ndarray, rng: np.random.Generator)
 def prepare(
     policy: str, cache: Path, out: Path, rows: int, kind: str = "encoding", batch: int = 512
 ) -> None:
-    from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD, MAX_JOINT_DELTA_RAD
+    from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD, step_target
     from clamgen.experiments.policies import load_policy
-    from clamgen.robot import ur5
     from clamgen.sim.scene import Scene
 
     agent = load_policy(policy)[0].agent
@@ -107,7 +106,7 @@ def prepare(
         )
         joints = scene.data.qpos[:6].copy()
         for k, action in enumerate(actions[row]):
-            wanted = np.clip(joints + action * MAX_JOINT_DELTA_RAD, *ur5.JOINT_LIMITS.T)
+            wanted = step_target(joints, action)
             collided[row, k] = scene.move_along(joints, wanted, COLLISION_CHECK_RESOLUTION_RAD)[1]
             scene.set_joints(joints)
     for name, value in (

@@ -286,7 +286,7 @@ class ReachEnv(gym.Env):
         action = self._check_action(action)
         scene = self.scene
         joints = scene.data.qpos.copy()
-        wanted = np.clip(joints + action * MAX_JOINT_DELTA_RAD, *ur5.JOINT_LIMITS.T)
+        wanted = step_target(joints, action)
         reached, collided = scene.move_along(joints, wanted, COLLISION_CHECK_RESOLUTION_RAD)
         self._move_target()
         self._num_steps += 1
@@ -429,6 +429,13 @@ class ReachEnv(gym.Env):
     def _reset_info(self) -> dict[str, Any]:
         distance = float(np.linalg.norm(self.scene.tip_position() - self.scene.target_position))
         return {"is_success": distance < SUCCESS_DISTANCE_M, "distance_m": distance}
+
+
+def step_target(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
+    """Where the env's joint step for `action` (in [-1, 1]; (..., 6) for several) ends:
+    `MAX_JOINT_DELTA_RAD` a unit of action on each joint, joint limits applied (float64)."""
+    step = np.asarray(action, np.float64) * MAX_JOINT_DELTA_RAD
+    return np.clip(joints + step, *ur5.JOINT_LIMITS.T)
 
 
 def _integer(name: str, value: Any, low: int, high: int | None = None) -> int:

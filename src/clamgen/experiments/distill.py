@@ -676,6 +676,12 @@ def _config_json(config: DistillConfig) -> str:
     )
 
 
+def actor_features(agent, obs: dict, visual: torch.Tensor) -> torch.Tensor:
+    """A student's actor features (what heads beside it read, `Distiller.add_head`) of a batch
+    of observations `obs`, from their visual encoding `visual`."""
+    return agent.actor.features(visual, agent._actor_view(agent._state(obs)))
+
+
 def pose_loss(predicted: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
     """Mean squared error of predicted obstacle poses (B, N, 8) against the true ones under the
     best matching per sample (the obstacles' order carries no meaning)."""

@@ -23,7 +23,11 @@ import mujoco
 import numpy as np
 import torch
 
-from clamgen.envs.reach_env import COLLISION_CHECK_RESOLUTION_RAD, MAX_JOINT_DELTA_RAD
+from clamgen.envs.reach_env import (
+    COLLISION_CHECK_RESOLUTION_RAD,
+    MAX_JOINT_DELTA_RAD,
+    step_target,
+)
 from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.distill import POSE_LENGTHS, POSE_SIZE, STATE_NAME
 from clamgen.robot import ur5
@@ -113,12 +117,6 @@ class ClearanceChecker:
         return np.array([step_clearance(self, joints, a) for a in actions])
 
 
-def step_target(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
-    """Where the env's joint step for `action` ends (joint limits applied)."""
-    step = np.asarray(action, np.float64) * MAX_JOINT_DELTA_RAD
-    return np.clip(joints + step, *ur5.JOINT_LIMITS.T)
-
-
 def step_checks(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
     """The configurations (K, 6) the env checks along its straight joint step for `action`,
     the step's end last."""
@@ -130,8 +128,7 @@ def step_checks(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
 def step_checks_many(joints: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`step_checks` of each of actions (A, 6) in one array (the same configurations, the
     same order), and where each action's checks start in it: (K, 6), (A,)."""
-    step = np.asarray(actions, np.float64) * MAX_JOINT_DELTA_RAD
-    delta = np.clip(joints + step, *ur5.JOINT_LIMITS.T) - joints
+    delta = step_target(joints, actions) - joints  # (A, 6)
     counts = np.maximum(
         1, np.ceil(np.abs(delta).max(axis=1) / COLLISION_CHECK_RESOLUTION_RAD).astype(np.int64)
     )
