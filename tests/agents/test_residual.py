@@ -303,3 +303,76 @@ def test_bad_config_is_refused():
         config(obs_source="lidar")
     with pytest.raises(ValueError, match="view_dropout"):
         config(view_dropout=1.0)
+
+
+def _trained_state() -> dict:
+    """A policy file's agent state of an agent that has learnt something (a started policy)."""
+    source = ResidualAgent(config(warmup_updates=0, seed=3), base_agent())
+    for step in range(3):
+        source.update(batch(seed=step))
+    return {k: v for k, v in source.state_dict().items() if k in source.policy_state_keys()}
+
+
+def test_start_from_acts_as_the_started_policy_with_fresh_targets_and_temperature():
+    state = _trained_state()
+    started = ResidualAgent(config(warmup_updates=0, init_temperature=0.05), base_agent())
+    started.start_from(state)
+    source = ResidualAgent(config(warmup_updates=0, seed=3), base_agent())
+    source.load_state_dict(state, policy_only=True)
+    data = batch(seed=7)["obs"]
+    np.testing.assert_array_equal(started.act(data, True), source.act(data, True))
+    # The target copies restart from the started networks, not from the fresh ones.
+    for target, online in (
+        (started.critic_target, started.critic),
+        (started.key_encoder, started.critic.encoder),
+    ):
+        for a, b in zip(target.parameters(), online.parameters(), strict=True):
+            torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert started.num_updates == 0
+    assert started.log_alpha.exp().item() == pytest.approx(0.05)
+    with pytest.raises(KeyError, match="actor"):
+        started.start_from({k: v for k, v in state.items() if k != "actor"})
+
+
+def test_freeze_encoder_and_critic_first_updates():
+    agent = ResidualAgent(
+        config(warmup_updates=0, freeze_encoder=True, critic_first_updates=2), base_agent()
+    )
+    agent.start_from(_trained_state())
+    encoder = [p.detach().clone() for p in agent.critic.encoder.parameters()]
+    actor = [p.detach().clone() for p in agent.actor.parameters()]
+    q_head = [p.detach().clone() for p in agent.critic.q.parameters()]
+    alpha = agent.log_alpha.item()
+    for step in range(2):  # critic only: the actor and the temperature wait
+        metrics = agent.update(batch(seed=step))
+        assert metrics["train/critic_first"] == 1.0 and "train/actor_loss" not in metrics
+    assert all(torch.equal(a, b) for a, b in zip(actor, agent.actor.parameters(), strict=True))
+    assert agent.log_alpha.item() == alpha
+    assert any(
+        not torch.equal(a, b) for a, b in zip(q_head, agent.critic.q.parameters(), strict=True)
+    )
+    metrics = agent.update(batch(seed=2))  # then the actor learns too
+    assert "train/actor_loss" in metrics
+    assert any(not torch.equal(a, b) for a, b in zip(actor, agent.actor.parameters(), strict=True))
+    for a, b in zip(encoder, agent.critic.encoder.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_anchor_loss_starts_at_zero_and_pulls_towards_the_started_actor():
+    state = _trained_state()
+    agent = ResidualAgent(config(warmup_updates=0, anchor_weight=1.0), base_agent())
+    agent.start_from(state)
+    metrics = agent.update(batch(seed=0))
+    assert metrics["train/anchor_loss"] == pytest.approx(0.0, abs=1e-10)
+    # After moving away, a heavily anchored actor moves back towards the started one.
+    anchored = ResidualAgent(config(warmup_updates=0, anchor_weight=1e4), base_agent())
+    anchored.start_from(state)
+    with torch.no_grad():
+        for p in anchored.actor.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    losses = [anchored.update(batch(seed=s))["train/anchor_loss"] for s in range(20)]
+    assert losses[-1] < 0.5 * losses[0]
+    with pytest.raises(ValueError, match="anchor_weight"):
+        config(anchor_weight=-1.0)
+    with pytest.raises(ValueError, match="critic_first_updates"):
+        config(critic_first_updates=-1)

@@ -243,3 +243,41 @@ def test_zoomed_views_count_twice_in_the_encoder(tmp_path, base_policy):
     assert zoomed.agent.encoder.num_views == 4
     with pytest.raises(ValueError, match="image_her re-renders the views only"):
         residual_stage(zoomed).make_rerender()
+
+
+def test_init_policy_starts_a_run_from_another_runs_policy(tmp_path, base_policy):
+    preset = load_preset("residual-obstacles", Stage2Config)
+    config = dataclasses.replace(
+        preset,
+        run_dir=tmp_path / "source",
+        base_policy=base_policy,
+        env=dataclasses.replace(preset.env, num_envs=2),
+        agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
+        replay=ReplayConfig(capacity=5_000),
+        loop=LOOP,
+    )
+    Stage2Trainer(config).run(show_progress=False)
+    source, _ = load_residual_agent(config.run_dir / POLICY_NAME)
+    started_config = dataclasses.replace(
+        config,
+        run_dir=tmp_path / "finetune",
+        init_policy=str(config.run_dir / POLICY_NAME),
+        agent=dataclasses.replace(config.agent, warmup_updates=0, freeze_encoder=True),
+    )
+    started = Stage2Trainer(started_config).agent
+    rng = np.random.default_rng(0)
+    obs = {
+        "observation": rng.uniform(-1, 1, (4, 6)).astype(np.float32),
+        "achieved_goal": np.full((4, 3), 0.3, np.float32),
+        "desired_goal": rng.uniform(0.2, 0.5, (4, 3)).astype(np.float32),
+        "obstacles": rng.uniform(-0.3, 0.3, (4, 2, 8)).astype(np.float32),
+    }
+    np.testing.assert_array_equal(started.act(obs, True), source.act(obs, True))
+    with pytest.raises(ValueError, match="warmup_updates=0"):
+        dataclasses.replace(started_config, agent=config.agent)
+    wider = dataclasses.replace(
+        started_config, agent=dataclasses.replace(started_config.agent, hidden_sizes=(64,))
+    )
+    with pytest.raises(ValueError, match="does not fit this run's agent config") as error:
+        Stage2Trainer(wider)
+    assert "\n" not in str(error.value)

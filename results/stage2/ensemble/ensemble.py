@@ -168,6 +168,13 @@ STUDENTS = {
         f"3v-rows147k-{kind}": str(ROOT / "runs" / "offline" / f"d3-rows147k-{kind}" / "policy.pt")
         for kind in ("base", "zoom", "chunk", "coll", "bins")
     },
+    # Session 30: RL fine-tuning from a student (`../finetune/finetune.py`): the privileged
+    # student with and without the anchor (the pilot), then the 3-view seeds.
+    **{
+        f"{student}-ft{tag}": str(ROOT / "runs" / "finetune" / f"{student}{tag}" / "policy.pt")
+        for student, tags in (("priv", ("-a0", "-a10")), *((f"3v-s{s}", ("",)) for s in (5, 7, 8)))
+        for tag in tags
+    },
 }
 """Single students regressed afresh (`distill/offline.py`): on the pooled data of seeds 1 and
 2 labelled by the members' mean (`--relabel`) and by the teacher as collected (the control),
@@ -211,6 +218,9 @@ COMPARED = {
     "3v-rows147k-bins": ("3v-rows147k-base",),
     "3v-rows147k-bins+head": ("3v-rows147k-bins", "3v-rows147k-base"),
     "3v-rows147k-coll+head": ("3v-rows147k-coll", "3v-rows147k-base"),
+    "priv-ft-a0": ("priv-pool4",),
+    "priv-ft-a10": ("priv-pool4", "priv-ft-a0"),
+    **{f"3v-s{seed}-ft": (f"3v-s{seed}",) for seed in (5, 7, 8)},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }

@@ -163,6 +163,22 @@ class ResidualConfig:
     transitions (a teacher's episodes, `loop.teacher_fraction`), as in Nair et al. 2018. The
     critic's Q values are ~100x the reward (`reward_scale`), so weights of 1-100 matter.
     0: no such term (the paper)."""
+    freeze_encoder: bool = False
+    """Beyond the paper, for RL fine-tuning of a policy started from a file
+    (`Stage2Config.init_policy`, e.g. a distilled student): the visual encoder gets no
+    gradient, so RL adjusts the controller on the features the starting policy learnt (and an
+    update skips the convs' backward pass). False: trained end to end (the paper)."""
+    critic_first_updates: int = 0
+    """Beyond the paper, for fine-tuning: the first updates train the critic only (the actor
+    and the temperature wait), so that a started policy meets a critic of its own behaviour
+    before its first actor step; a fresh Q_res is 0 and its gradient alone would pull the
+    actor towards the base. 0: none (the paper)."""
+    anchor_weight: float = 0.0
+    """Beyond the paper, for fine-tuning: weight of the squared distance (summed over joints)
+    between the actor's pre-squash mean and the starting policy's (`start_from` keeps a frozen
+    copy of its actor) in the actor loss, so that RL keeps what the starting policy learnt
+    where the critic has nothing better. Q values are ~100x the reward (`reward_scale`), so
+    weights of 1-100 matter. 0: none."""
     seed: int = 0
     """Seed of the initialisation and of the agent's own sampling."""
     device: str = "cpu"
@@ -172,7 +188,16 @@ class ResidualConfig:
         check_sac_settings(self)
         if not (isinstance(self.bc_weight, int | float) and 0 <= self.bc_weight < np.inf):
             raise ValueError(f"agent.bc_weight must be a finite number >= 0, got {self.bc_weight}")
-        for name, low in (("crop_padding", 0), ("warmup_updates", 0), ("obstacle_feature_dim", 1)):
+        if not (isinstance(self.anchor_weight, int | float) and 0 <= self.anchor_weight < np.inf):
+            raise ValueError(
+                f"agent.anchor_weight must be a finite number >= 0, got {self.anchor_weight}"
+            )
+        for name, low in (
+            ("crop_padding", 0),
+            ("warmup_updates", 0),
+            ("critic_first_updates", 0),
+            ("obstacle_feature_dim", 1),
+        ):
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
                 raise ValueError(f"agent.{name} must be an integer >= {low}, got {value!r}")
@@ -441,6 +466,11 @@ class ResidualAgent:
             aux = build_aux_losses(config.aux, dims)
         self.feature_dim = feature_dim
         self.nets = ResidualNetworks(critic, actor, base, aux).to(self.device)
+        if config.freeze_encoder:
+            self.critic.encoder.requires_grad_(False)
+        # What `anchor_weight` pulls the actor towards: the actor the agent starts with
+        # (`start_from` replaces it by the started policy's).
+        self._anchor = copy.deepcopy(actor).requires_grad_(False)
         # The base is frozen unless finetuned; its normaliser scales every network's low-dim
         # input (frozen statistics).
         for module in (self.base_actor, self.base_critic):
@@ -799,7 +829,10 @@ class ResidualAgent:
         return metrics
 
     def _update_actor_and_temperature(self, visual, latent, x: _TrainInputs) -> dict[str, float]:
-        """SAC's actor step on detached features (CURL, SAC-AE), then the temperature."""
+        """SAC's actor step on detached features (CURL, SAC-AE), then the temperature; none
+        while the critic learns first (`critic_first_updates`)."""
+        if self.num_updates < self.config.critic_first_updates:
+            return {"train/critic_first": 1.0}
         alpha = self.log_alpha.detach().exp()
         warming_up = self.num_updates < self._warmup_updates
         low_dim = self._critic_view(x.state)
@@ -819,6 +852,10 @@ class ResidualAgent:
                 actor_loss = actor_loss + self.config.bc_weight * bc_loss
                 metrics["train/bc_loss"] = bc_loss.item()
                 metrics["train/bc_fraction"] = x.demonstration.mean().item()
+            if self.config.anchor_weight > 0:
+                anchor_loss = self._anchor_loss(mean, visual, self._actor_view(x.state))
+                actor_loss = actor_loss + self.config.anchor_weight * anchor_loss
+                metrics["train/anchor_loss"] = anchor_loss.item()
             self.actor_optim.zero_grad(set_to_none=True)
             actor_loss.backward()
             self.actor_optim.step()
@@ -832,6 +869,13 @@ class ResidualAgent:
             "train/entropy": -log_prob.detach().mean().item(),
             "train/warmup": float(warming_up),
         }
+
+    def _anchor_loss(self, mean: torch.Tensor, visual: torch.Tensor, low_dim: torch.Tensor):
+        """Squared distance (summed over joints, averaged over the batch) of the combined
+        pre-squash mean to the anchor actor's on the same inputs."""
+        with torch.no_grad():
+            anchor = self._anchor(visual, low_dim)[0] + self._base_mean(low_dim)
+        return (mean - anchor).square().sum(-1).mean()
 
     def _update_targets(self) -> None:
         cfg = self.config
@@ -860,6 +904,25 @@ class ResidualAgent:
             "num_updates": self.num_updates,
             "torch_generator": self._generator.get_state(),
         }
+
+    def start_from(self, state: Mapping[str, Any]) -> None:
+        """Start training from another run's policy (a policy file's agent state, e.g. a
+        distilled student's) instead of fresh networks: its acting networks are loaded, the
+        target copies (target critic, CURL's key encoder, the base's target critic) restart
+        from them, and a frozen copy of its actor becomes the anchor (`anchor_weight`). The
+        temperature, optimisers and update count stay fresh. A RuntimeError or KeyError names
+        what does not match this agent's config."""
+        state = _translate_legacy_keys(state)
+        missing = sorted(set(self.nets.policy) - set(state))
+        if missing:
+            raise KeyError(f"the policy has no {missing}")
+        for key, module in self.nets.parts().items():
+            if key in state and key in self.policy_state_keys():
+                module.load_state_dict(state[key])
+        self.critic_target.load_state_dict(self.critic.state_dict())
+        self.key_encoder.load_state_dict(self.critic.encoder.state_dict())
+        self.base_critic_target.load_state_dict(self.base_critic.state_dict())
+        self._anchor = copy.deepcopy(self.actor).requires_grad_(False)
 
     def load_state_dict(self, state: Mapping[str, Any], policy_only: bool = False) -> None:
         """Load `state_dict()`'s output; `policy_only`: a policy file's subset, the training-only

@@ -73,6 +73,12 @@ class Stage2Config:
     """Directory for config, metrics, TensorBoard events and checkpoints."""
     base_policy: str = "base"
     """The stage-1 policy: `base` (shipped) or a policy file from `clamgen train`."""
+    init_policy: str = ""
+    """Beyond the paper: a residual policy file (`clamgen distill`'s student, or a
+    `clamgen train-residual` run's policy) whose networks the agent starts from instead of
+    fresh ones, for RL fine-tuning; its agent must have this run's network shapes (see
+    `agent.freeze_encoder`, `agent.critic_first_updates`, `agent.anchor_weight`). "": fresh
+    networks (the paper)."""
     image_her: bool = True
     """Reversible HER for image observations, re-rendered in a worker process ("no HER": off)."""
     rerender_in_process: bool = False
@@ -124,6 +130,11 @@ class Stage2Config:
             raise ValueError("pretrain.scenes > 0 needs image observations (agent.obs_source)")
         if not images and not self.env.include_obstacle_state:
             raise ValueError("agent.obs_source='obstacles' needs env.include_obstacle_state=True")
+        if self.init_policy and self.agent.warmup_updates > 0:
+            raise ValueError(
+                "init_policy with agent.warmup_updates > 0 would first clone the base policy "
+                "over the started one: set agent.warmup_updates=0"
+            )
 
 
 def residual_stage(config: Stage2Config) -> Stage:
@@ -137,7 +148,10 @@ def residual_stage(config: Stage2Config) -> Stage:
         base, _ = load_policy_agent(ckpt.resolve_policy_path(config.base_policy))
         agent_config = dataclasses.replace(config.agent, seed=config.loop.seed)
         num_obstacles = getattr(probe.unwrapped, "num_obstacles", 2)
-        return ResidualAgent(agent_config, base, num_obstacles=num_obstacles)
+        agent = ResidualAgent(agent_config, base, num_obstacles=num_obstacles)
+        if config.init_policy:
+            start_from_policy(agent, Path(config.init_policy))
+        return agent
 
     def make_rerender():
         from clamgen.replay.rerender import RerenderWorker
@@ -216,6 +230,19 @@ def pretrain_encoder(trainer: Trainer) -> dict[str, float]:
     (trainer.run_dir / "pretrain.json").write_text(json.dumps(summary, indent=2) + "\n")
     print("pretrain:", json.dumps(summary))
     return summary
+
+
+def start_from_policy(agent: ResidualAgent, path: Path) -> None:
+    """`agent.start_from` the agent state of the residual policy file at `path`; a
+    CheckpointError in one line when the file's networks do not fit the agent."""
+    payload = ckpt.load_torch(path, RESIDUAL_POLICY_KIND)
+    try:
+        agent.start_from(payload["agent"])
+    except (RuntimeError, KeyError) as error:
+        first = str(error).strip().splitlines()[0]
+        raise ckpt.CheckpointError(
+            f"init_policy {path} does not fit this run's agent config: {first}"
+        ) from error
 
 
 def load_residual_agent(
