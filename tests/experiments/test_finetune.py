@@ -9,9 +9,7 @@ from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.stage2 import Stage2Trainer, load_residual_agent
 
 
-def test_finetune_config_keeps_the_students_networks_and_starts_from_it(
-    tmp_path, results_script
-):
+def test_finetune_config_keeps_the_students_networks_and_starts_from_it(tmp_path, results_script):
     finetune = results_script("stage2/finetune/finetune.py")
     student = ckpt.resolve_policy_path("residual-1view")
     args = argparse.Namespace(

@@ -41,17 +41,22 @@ LOOP = LoopConfig(
 )
 
 
-def test_privileged_residual_trains_exports_and_loads(tmp_path, base_policy):
+def privileged_config(run_dir, base_policy) -> Stage2Config:
+    """The privileged preset, shrunk to a test's size."""
     preset = load_preset("residual-obstacles", Stage2Config)
-    config = dataclasses.replace(
+    return dataclasses.replace(
         preset,
-        run_dir=tmp_path / "run",
+        run_dir=run_dir,
         base_policy=base_policy,
         env=dataclasses.replace(preset.env, num_envs=2),
         agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
         replay=ReplayConfig(capacity=5_000),
         loop=LOOP,
     )
+
+
+def test_privileged_residual_trains_exports_and_loads(tmp_path, base_policy):
+    config = privileged_config(tmp_path / "run", base_policy)
     summary = Stage2Trainer(config).run(show_progress=False)
     assert 0 <= summary["eval/success_rate"] <= 1
     agent, loaded = load_residual_agent(config.run_dir / POLICY_NAME)
@@ -246,16 +251,7 @@ def test_zoomed_views_count_twice_in_the_encoder(tmp_path, base_policy):
 
 
 def test_init_policy_starts_a_run_from_another_runs_policy(tmp_path, base_policy):
-    preset = load_preset("residual-obstacles", Stage2Config)
-    config = dataclasses.replace(
-        preset,
-        run_dir=tmp_path / "source",
-        base_policy=base_policy,
-        env=dataclasses.replace(preset.env, num_envs=2),
-        agent=dataclasses.replace(preset.agent, batch_size=16, hidden_sizes=(32,)),
-        replay=ReplayConfig(capacity=5_000),
-        loop=LOOP,
-    )
+    config = privileged_config(tmp_path / "source", base_policy)
     Stage2Trainer(config).run(show_progress=False)
     source, _ = load_residual_agent(config.run_dir / POLICY_NAME)
     started_config = dataclasses.replace(

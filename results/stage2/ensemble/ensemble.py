@@ -172,7 +172,10 @@ STUDENTS = {
     # student with and without the anchor (the pilot), then the 3-view seeds.
     **{
         f"{student}-ft{tag}": str(ROOT / "runs" / "finetune" / f"{student}{tag}" / "policy.pt")
-        for student, tags in (("priv", ("-a0", "-a10")), *((f"3v-s{s}", ("",)) for s in (5, 7, 8)))
+        for student, tags in (
+            ("priv", ("-a0", "-a1", "-a3", "-a10")),
+            *((f"3v-s{s}", ("",)) for s in (5, 7, 8)),
+        )
         for tag in tags
     },
 }
@@ -219,7 +222,7 @@ COMPARED = {
     "3v-rows147k-bins+head": ("3v-rows147k-bins", "3v-rows147k-base"),
     "3v-rows147k-coll+head": ("3v-rows147k-coll", "3v-rows147k-base"),
     "priv-ft-a0": ("priv-pool4",),
-    "priv-ft-a10": ("priv-pool4", "priv-ft-a0"),
+    **{f"priv-ft-a{a}": ("priv-pool4",) for a in (1, 3, 10)},
     **{f"3v-s{seed}-ft": (f"3v-s{seed}",) for seed in (5, 7, 8)},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
