@@ -19,6 +19,7 @@ def test_finetune_config_keeps_the_students_networks_and_starts_from_it(tmp_path
         actor_lr=1e-4,
         penalty=finetune.COLLISION_PENALTY,
         collision_ends=True,
+        n_step=3,
         learning_starts=10,
         eval_every=20,
         eval_episodes=1,
@@ -31,7 +32,7 @@ def test_finetune_config_keeps_the_students_networks_and_starts_from_it(tmp_path
     assert config.env.num_views == own.env.num_views and config.env.env_id == own.env.env_id
     assert config.agent.freeze_encoder and config.agent.warmup_updates == 0
     assert config.agent.anchor_weight == 10.0 and config.agent.critic_first_updates == 5
-    assert config.env.collision_ends_episode
+    assert config.env.collision_ends_episode and config.replay.n_step == 3
     assert config.env.collision_penalty(0.0) == config.env.collision_penalty(1.0) == 1.0
     assert not config.image_her and config.init_policy == str(student)
     # The run's agent starts as the student acts.

@@ -173,7 +173,7 @@ STUDENTS = {
     **{
         f"{student}-ft{tag}": str(ROOT / "runs" / "finetune" / f"{student}{tag}" / "policy.pt")
         for student, tags in (
-            ("priv", ("-a0", "-a1", "-a3", "-a10")),
+            ("priv", ("-a0", "-a1", "-a3", "-a10", "-a1-100k", "-a1-100k-n5")),
             *((f"3v-s{s}", ("",)) for s in (5, 7, 8)),
         )
         for tag in tags
@@ -222,7 +222,8 @@ COMPARED = {
     "3v-rows147k-bins+head": ("3v-rows147k-bins", "3v-rows147k-base"),
     "3v-rows147k-coll+head": ("3v-rows147k-coll", "3v-rows147k-base"),
     "priv-ft-a0": ("priv-pool4",),
-    **{f"priv-ft-a{a}": ("priv-pool4",) for a in (1, 3, 10)},
+    **{f"priv-ft-a{a}": ("priv-pool4",) for a in (1, 3, 10, "1-100k")},
+    "priv-ft-a1-100k-n5": ("priv-pool4", "priv-ft-a1-100k"),
     **{f"3v-s{seed}-ft": (f"3v-s{seed}",) for seed in (5, 7, 8)},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),

@@ -65,7 +65,9 @@ def finetune_config(student: Path, run_dir: Path, args: argparse.Namespace) -> S
         # The encoder is frozen: losses that only shape it would cost updates for nothing.
         aux=AuxLossConfig(curl_weight=0.0, across_view_weight=0.0, collision_weight=0.0),
     )
-    replay = dataclasses.replace(config.replay, capacity=min(args.steps, 100_000))
+    replay = dataclasses.replace(
+        config.replay, capacity=min(args.steps, 100_000), n_step=args.n_step
+    )
     loop = dataclasses.replace(
         config.loop,
         total_env_steps=args.steps,
@@ -105,6 +107,7 @@ def main() -> None:
         default=True,
         help="a collision ends a training episode (env.collision_ends_episode)",
     )
+    parser.add_argument("--n-step", type=int, default=1, help="replay.n_step (returns)")
     parser.add_argument("--learning-starts", type=int, default=1_000)
     parser.add_argument("--eval-every", type=int, default=5_000)
     parser.add_argument("--eval-episodes", type=int, default=100)
