@@ -97,6 +97,10 @@ LEARNED_SHIELD = {
 """Session 29: a 3-view seed through a collision head on its own encoding
 (`clamgen.experiments.learned_shield`, fitted by `../shield/learned_shield.py`: its
 directory, the threshold)."""
+BY_CRITIC = {f"priv-ft-{tag}+critic": f"priv-ft-{tag}" for tag in ("a1", "a1-100k", "a1-100k-n5")}
+"""Session 30: fine-tuned students acting by their critic (the best of
+`CRITIC_CANDIDATES` candidates around the mean by the fine-tuned Q, `SACPolicy`'s
+`critic_candidates`): the critic learnt that a collision ends an episode at a cost."""
 HEADED = {
     "3v-rows147k-chunk+ens": ("3v-rows147k-chunk", "chunks", "ChunkEnsemblePolicy"),
     "3v-rows147k-bins+head": ("3v-rows147k-bins", "bins", "BinPolicy"),
@@ -214,6 +218,7 @@ COMPARED = {
     "3v-s5+hybrid": ("3v-s5", "3v-s5+shield"),
     **{name: (policy,) for name, (policy, _) in SWITCHED.items()},
     **{name: (policy,) for name, policy in CROPPED.items()},
+    **{name: (policy,) for name, policy in BY_CRITIC.items()},
     **{name: (policy,) for name, (policy, _) in BURST.items()},
     **{name: (policy,) for name, policy in AMPLIFIED.items()},
     **{name: (policy,) for name, (policy, _, _) in LEARNED_SHIELD.items()},
@@ -238,6 +243,7 @@ NAMES = (
     *GUARDED,
     *SWITCHED,
     *CROPPED,
+    *BY_CRITIC,
     *HEADED,
     *BURST,
     *AMPLIFIED,
@@ -326,6 +332,12 @@ def load(name: str):
         policy, kwargs = load(student)
         head = Path(STUDENTS[student]).parent / module.HEAD_NAME
         return getattr(module, policy_class)(policy.agent, head), kwargs
+    if name in BY_CRITIC:
+        from clamgen.agents.residual import CRITIC_CANDIDATES
+        from clamgen.experiments.evaluate import SACPolicy
+
+        policy, kwargs = load(BY_CRITIC[name])
+        return SACPolicy(policy.agent, critic_candidates=CRITIC_CANDIDATES), kwargs
     if name in CROPPED:
         policy, kwargs = load(CROPPED[name])
         return CropMeanPolicy(policy.agent), kwargs
