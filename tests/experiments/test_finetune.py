@@ -2,6 +2,7 @@
 settings, starting from the student."""
 
 import argparse
+import dataclasses
 
 import numpy as np
 
@@ -40,3 +41,6 @@ def test_finetune_config_keeps_the_students_networks_and_starts_from_it(tmp_path
     trainer = Stage2Trainer(config)
     obs, _ = trainer.eval_env.reset(seed=3)
     np.testing.assert_array_equal(trainer.agent.act(obs, True), source.act(obs, True))
+    # A shipped policy by name starts the same networks.
+    named = dataclasses.replace(config, init_policy="residual-1view", run_dir=tmp_path / "named")
+    np.testing.assert_array_equal(Stage2Trainer(named).agent.act(obs, True), source.act(obs, True))

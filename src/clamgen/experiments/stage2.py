@@ -74,11 +74,11 @@ class Stage2Config:
     base_policy: str = "base"
     """The stage-1 policy: `base` (shipped) or a policy file from `clamgen train`."""
     init_policy: str = ""
-    """Beyond the paper: a residual policy file (`clamgen distill`'s student, or a
-    `clamgen train-residual` run's policy) whose networks the agent starts from instead of
-    fresh ones, for RL fine-tuning; its agent must have this run's network shapes (see
-    `agent.freeze_encoder`, `agent.critic_first_updates`, `agent.anchor_weight`). "": fresh
-    networks (the paper)."""
+    """Beyond the paper: a residual policy (a shipped one by name, e.g. `residual-3views`, or
+    the file of `clamgen distill`'s student or a `train-residual` run) whose networks the agent
+    starts from instead of fresh ones, for RL fine-tuning; its agent must have this run's
+    network shapes (see `agent.freeze_encoder`, `agent.critic_first_updates`,
+    `agent.anchor_weight`). "": fresh networks (the paper)."""
     image_her: bool = True
     """Reversible HER for image observations, re-rendered in a worker process ("no HER": off)."""
     rerender_in_process: bool = False
@@ -150,7 +150,7 @@ def residual_stage(config: Stage2Config) -> Stage:
         num_obstacles = getattr(probe.unwrapped, "num_obstacles", 2)
         agent = ResidualAgent(agent_config, base, num_obstacles=num_obstacles)
         if config.init_policy:
-            start_from_policy(agent, Path(config.init_policy))
+            start_from_policy(agent, ckpt.resolve_policy_path(config.init_policy))
         return agent
 
     def make_rerender():
