@@ -21,6 +21,7 @@ def test_finetune_config_keeps_the_students_networks_and_starts_from_it(tmp_path
         penalty=finetune.COLLISION_PENALTY,
         collision_ends=True,
         n_step=3,
+        train_encoder=False,
         learning_starts=10,
         eval_every=20,
         eval_episodes=1,

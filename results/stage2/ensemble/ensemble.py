@@ -178,7 +178,7 @@ STUDENTS = {
         f"{student}-ft{tag}": str(ROOT / "runs" / "finetune" / f"{student}{tag}" / "policy.pt")
         for student, tags in (
             ("priv", ("-a0", "-a1", "-a3", "-a10", "-a1-100k", "-a1-100k-n5")),
-            *((f"3v-s{s}", ("", "-a10")) for s in (5, 7, 8)),
+            *((f"3v-s{s}", ("", "-a10", "-enc")) for s in (5, 7, 8)),
         )
         for tag in tags
     },
@@ -231,6 +231,7 @@ COMPARED = {
     "priv-ft-a1-100k-n5": ("priv-pool4", "priv-ft-a1-100k"),
     **{f"3v-s{seed}-ft": (f"3v-s{seed}",) for seed in (5, 7, 8)},
     **{f"3v-s{seed}-ft-a10": (f"3v-s{seed}", f"3v-s{seed}-ft") for seed in (5, 7, 8)},
+    **{f"3v-s{seed}-ft-enc": (f"3v-s{seed}", f"3v-s{seed}-ft-a10") for seed in (5, 7, 8)},
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }

@@ -10,7 +10,8 @@ student's networks instead of fresh ones (`Stage2Config.init_policy`), on the ta
 student was distilled on:
 
 - the student's encoder stays frozen (`agent.freeze_encoder`): RL adjusts the controller on the
-  features imitation taught, and an update skips the convs' backward pass;
+  features imitation taught, and an update skips the convs' backward pass (`--train-encoder`:
+  trained by the critic and the student's own auxiliary losses, as in stage 2);
 - the first `--critic-first` updates train the critic alone (`agent.critic_first_updates`): a
   fresh Q_res is 0, and the actor's first gradients would otherwise come from Q_base alone,
   which knows nothing of the obstacles;
@@ -43,6 +44,7 @@ from clamgen.schedules import Constant
 # The discounted cost of stalling to the time limit is 0.01 / (1 - gamma) = 0.5 at gamma 0.98;
 # a collision that ends the episode must cost more, or it is the cheaper way out.
 COLLISION_PENALTY = 1.0
+FROZEN_AUX = AuxLossConfig(curl_weight=0.0, across_view_weight=0.0, collision_weight=0.0)
 
 
 def finetune_config(student: Path, run_dir: Path, args: argparse.Namespace) -> Stage2Config:
@@ -58,12 +60,13 @@ def finetune_config(student: Path, run_dir: Path, args: argparse.Namespace) -> S
     agent = dataclasses.replace(
         config.agent,
         warmup_updates=0,
-        freeze_encoder=True,
+        freeze_encoder=not args.train_encoder,
         critic_first_updates=args.critic_first,
         anchor_weight=args.anchor,
         actor_lr=args.actor_lr,
-        # The encoder is frozen: losses that only shape it would cost updates for nothing.
-        aux=AuxLossConfig(curl_weight=0.0, across_view_weight=0.0, collision_weight=0.0),
+        # A frozen encoder: losses that only shape it would cost updates for nothing. A trained
+        # one keeps the student's own auxiliary losses (stage 2's).
+        aux=config.agent.aux if args.train_encoder else FROZEN_AUX,
     )
     replay = dataclasses.replace(
         config.replay, capacity=min(args.steps, 100_000), n_step=args.n_step
@@ -108,6 +111,11 @@ def main() -> None:
         help="a collision ends a training episode (env.collision_ends_episode)",
     )
     parser.add_argument("--n-step", type=int, default=1, help="replay.n_step (returns)")
+    parser.add_argument(
+        "--train-encoder",
+        action="store_true",
+        help="train the student's encoder too (by the critic and its own auxiliary losses)",
+    )
     parser.add_argument("--learning-starts", type=int, default=1_000)
     parser.add_argument("--eval-every", type=int, default=5_000)
     parser.add_argument("--eval-episodes", type=int, default=100)
