@@ -20,9 +20,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.distill import Distiller
-from clamgen.experiments.learned_shield import HEAD_KIND, HEAD_NAME, CollisionHead
+from clamgen.experiments.learned_shield import HEAD_NAME, make_head, save_head
 
 WEIGHT = 1.0
 """Of the collision loss beside the imitation loss (0.6 at the end of a regression; the
@@ -46,9 +45,9 @@ class CollisionDistiller(Distiller):
     def attach_collisions(self, actions: np.ndarray, collided: np.ndarray) -> None:
         self.actions = torch.as_tensor(actions)
         self.collided = torch.as_tensor(collided).float()
-        features = self.student.feature_dim + self.student.config.encoder.low_dim_input
+        self.features = self.student.feature_dim + self.student.config.encoder.low_dim_input
         self.collision_head = self.add_head(
-            "collision_head", lambda: CollisionHead(features, actions.shape[2])
+            "collision_head", lambda: make_head(self.features, actions.shape[2])
         )
 
     def extra_loss(self, index: np.ndarray, obs: dict, visual: torch.Tensor):
@@ -63,15 +62,4 @@ class CollisionDistiller(Distiller):
         return WEIGHT * loss
 
     def save_head(self, out: Path) -> None:
-        first = self.collision_head.net[0]
-        ckpt.save_torch(
-            out / HEAD_NAME,
-            {
-                "format": ckpt.FORMAT,
-                "kind": HEAD_KIND,
-                "reads": "encoding",
-                "features": first.in_features - self.actions.shape[2],
-                "action_dim": self.actions.shape[2],
-                "state": self.collision_head.state_dict(),
-            },
-        )
+        save_head(out / HEAD_NAME, self.collision_head, self.features, "encoding")

@@ -5,7 +5,7 @@ The depth shield (`clamgen.experiments.depth_shield`) keeps the students' blocke
 rates under the aim, reading each view's depth at 128 pixels. Can the students' own 64-pixel
 encoding tell a colliding step instead? A small head on a frozen student's visual encoding,
 its joints and goal, and a candidate action predicts whether that step collides
-(`clamgen.experiments.learned_shield.CollisionHead`); acting (`LearnedShieldPolicy` there),
+(`clamgen.experiments.learned_shield.make_head`); acting (`LearnedShieldPolicy` there),
 the student's action goes through when the head's probability is under a threshold, else the
 nearest safe candidate (the action scaled down, or moved on one joint) or, when none is safe,
 the least risky one.
@@ -34,12 +34,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.learned_shield import (
     FEATURES,
-    HEAD_KIND,
     HEAD_NAME,
-    CollisionHead,
+    make_head,
+    save_head,
     student_features,
 )
 from clamgen.experiments.pooled import apply_row, cache_files
@@ -157,7 +156,7 @@ def fit(out: Path, epochs: int = EPOCHS, name: str = HEAD_NAME) -> None:
     if split == 0:
         raise SystemExit(f"the first {rows} states are one data file: prepare more rows")
     torch.manual_seed(SEED)
-    head = CollisionHead(features.shape[1], actions.shape[2])
+    head = make_head(features.shape[1], actions.shape[2])
     optimizer = torch.optim.Adam(head.parameters(), lr=LR)
     pairs = split * kinds
     started = time.time()
@@ -204,17 +203,7 @@ def fit(out: Path, epochs: int = EPOCHS, name: str = HEAD_NAME) -> None:
         },
     }
     (out / name).with_suffix(".json").write_text(json.dumps(report, indent=1))
-    ckpt.save_torch(
-        out / name,
-        {
-            "format": ckpt.FORMAT,
-            "kind": HEAD_KIND,
-            "reads": record.get("features", "encoding"),
-            "features": features.shape[1],
-            "action_dim": actions.shape[2],
-            "state": head.state_dict(),
-        },
-    )
+    save_head(out / name, head, features.shape[1], record.get("features", "encoding"))
     print(json.dumps({k: v for k, v in report.items() if k != "candidates"}, indent=1))
 
 

@@ -1,9 +1,10 @@
 """A learned collision head on a student's own encoding, and a policy acting through it (beyond
 the paper; measured in `results/stage2/shield/README.md`, session 29).
 
-`CollisionHead` maps what a vision student computes of a state (`student_features`: its visual
-encoding, or each view's projection in the encoder's first dense layer, with its normalised
-joints and goal) and a candidate action to the logit of that step colliding; it is regressed
+A collision head (`make_head`: the collision-prediction loss's `CollisionHead`, 2 x 256) maps
+what a vision student computes of a state (`student_features`: its visual encoding, or each
+view's projection in the encoder's first dense layer, with its normalised joints and goal) and
+a candidate action to the logit of that step colliding; it is regressed
 on pooled DAgger states labelled in the true scene (`results/stage2/shield/learned_shield.py`)
 or beside the student itself (`results/stage2/distill/offline.py --collision-labels`).
 `LearnedShieldPolicy` lets the student's action through when the head's probability is under a
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from clamgen.agents.aux_losses import CollisionHead
 from clamgen.experiments import checkpoint as ckpt
 
 HIDDEN = 256
@@ -30,21 +32,34 @@ HEAD_NAME = "head.pt"
 HEAD_KIND = "collision-head"
 
 
-class CollisionHead(torch.nn.Module):
-    """(student's features (B, D), action (B, A)) -> the logit of the step colliding (B,)."""
+def make_head(features: int, action_dim: int) -> CollisionHead:
+    """A fresh head: (student's features (B, `features`), action (B, A)) -> the logit of the
+    step colliding (B,), two hidden layers of `HIDDEN`."""
+    return CollisionHead(features, action_dim, (HIDDEN, HIDDEN))
 
-    def __init__(self, features: int, action_dim: int) -> None:
-        super().__init__()
-        self.net = torch.nn.Sequential(
-            torch.nn.Linear(features + action_dim, HIDDEN),
-            torch.nn.ReLU(),
-            torch.nn.Linear(HIDDEN, HIDDEN),
-            torch.nn.ReLU(),
-            torch.nn.Linear(HIDDEN, 1),
-        )
 
-    def forward(self, features: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.net(torch.cat([features, action], -1)).squeeze(-1)
+def save_head(path: Path, head: CollisionHead, features: int, reads: str) -> None:
+    """Write `head` (reading `features` numbers of the student's kind `reads`, `FEATURES`)
+    where `LearnedShieldPolicy` loads it."""
+    ckpt.save_torch(
+        path,
+        {
+            "format": ckpt.FORMAT,
+            "kind": HEAD_KIND,
+            "reads": reads,
+            "features": features,
+            "action_dim": head.net[0].in_features - features,
+            "state": head.state_dict(),
+        },
+    )
+
+
+def load_head(path: Path) -> tuple[CollisionHead, str]:
+    """(the head `save_head` wrote, what of the student it reads)."""
+    saved = ckpt.load_torch(path, kind=HEAD_KIND)
+    head = make_head(saved["features"], saved["action_dim"])
+    head.load_state_dict(saved["state"])
+    return head, saved["reads"]
 
 
 FEATURES = ("encoding", "projections")
@@ -83,11 +98,8 @@ class LearnedShieldPolicy:
     Counts `num_shielded` of `num_steps`."""
 
     def __init__(self, agent, head_path: Path, threshold: float = THRESHOLD) -> None:
-        saved = ckpt.load_torch(head_path, kind=HEAD_KIND)
         self.agent = agent
-        self.head = CollisionHead(saved["features"], saved["action_dim"])
-        self.head.load_state_dict(saved["state"])
-        self.reads = saved["reads"]
+        self.head, self.reads = load_head(head_path)
         self.threshold = threshold
         self.num_steps = self.num_shielded = 0
 
