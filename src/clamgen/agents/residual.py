@@ -468,9 +468,7 @@ class ResidualAgent:
         self.nets = ResidualNetworks(critic, actor, base, aux).to(self.device)
         if config.freeze_encoder:
             self.critic.encoder.requires_grad_(False)
-        # What `anchor_weight` pulls the actor towards: the actor the agent starts with
-        # (`start_from` replaces it by the started policy's).
-        self._anchor = copy.deepcopy(actor).requires_grad_(False)
+        self._keep_anchor()
         # The base is frozen unless finetuned; its normaliser scales every network's low-dim
         # input (frozen statistics).
         for module in (self.base_actor, self.base_critic):
@@ -870,6 +868,15 @@ class ResidualAgent:
             "train/warmup": float(warming_up),
         }
 
+    def _keep_anchor(self) -> None:
+        """A frozen copy of the actor as it is now, what `anchor_weight` pulls the actor towards
+        (the actor the agent starts with; `start_from` retakes it); none without the term."""
+        self._anchor = (
+            copy.deepcopy(self.actor).requires_grad_(False)
+            if self.config.anchor_weight > 0
+            else None
+        )
+
     def _anchor_loss(self, mean: torch.Tensor, visual: torch.Tensor, low_dim: torch.Tensor):
         """Squared distance (summed over joints, averaged over the batch) of the combined
         pre-squash mean to the anchor actor's on the same inputs."""
@@ -909,20 +916,21 @@ class ResidualAgent:
         """Start training from another run's policy (a policy file's agent state, e.g. a
         distilled student's) instead of fresh networks: its acting networks are loaded, the
         target copies (target critic, CURL's key encoder, the base's target critic) restart
-        from them, and a frozen copy of its actor becomes the anchor (`anchor_weight`). The
+        from them, and a frozen copy of its actor becomes the anchor (`anchor_weight` > 0). The
         temperature, optimisers and update count stay fresh. A RuntimeError or KeyError names
         what does not match this agent's config."""
         state = _translate_legacy_keys(state)
         missing = sorted(set(self.nets.policy) - set(state))
         if missing:
             raise KeyError(f"the policy has no {missing}")
-        for key, module in self.nets.parts().items():
-            if key in state and key in self.policy_state_keys():
-                module.load_state_dict(state[key])
+        parts = self.nets.parts()
+        for key in self.nets.policy_keys():
+            if key in state:
+                parts[key].load_state_dict(state[key])
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.key_encoder.load_state_dict(self.critic.encoder.state_dict())
         self.base_critic_target.load_state_dict(self.base_critic.state_dict())
-        self._anchor = copy.deepcopy(self.actor).requires_grad_(False)
+        self._keep_anchor()
 
     def load_state_dict(self, state: Mapping[str, Any], policy_only: bool = False) -> None:
         """Load `state_dict()`'s output; `policy_only`: a policy file's subset, the training-only
