@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from clamgen.experiments.aggregate import table2_row_name, write_seed_set
 from clamgen.experiments.report import (
     ReportConfig,
     RunResult,
@@ -151,6 +152,67 @@ def test_a_run_shared_by_two_sweeps_counts_once(tmp_path):
     text = build_report(ReportConfig(results_dir=tmp_path, reps=100)).read_text()
     assert f"| {full} | 3 (0, 1, 2) | 0.910 (" in text
     assert f"| {ablation} | 2 (0, 1) | 0.500 (" in text
+
+
+def table2_file(path, name, obstacles, blocked):
+    rows = [
+        ObstacleRow(name, 4, success, 0.0, success, 0.3, 0.02, 1.5, family=family).__dict__
+        for family, success in (("obstacles", obstacles), ("blocked", blocked))
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"rows": rows}))
+    return path
+
+
+def test_a_seed_set_makes_one_row_of_its_runs(tmp_path):
+    write_results(tmp_path)
+    shipped = table2_file(tmp_path / "table2" / "shipped.json", "the shipped policy", 0.9, 0.8)
+    others = [
+        table2_file(tmp_path / "more" / f"seed{s}.json", f"its recipe, seed {s}", 0.95, 0.6)
+        for s in (7, 8)
+    ]
+    row = "the shipped recipe over seeds"
+    out = write_seed_set(
+        {row: [(5, shipped), (7, others[0]), (8, others[1])]},
+        tmp_path / "more" / "seeds.json",
+        "python make_seeds.py",
+        "seed 5 is the shipped policy",
+    )
+    saved = json.loads(out.read_text())
+    assert saved["kind"] == "clamgen-seeds"
+    assert saved["runs"][0] == {
+        "row": row,
+        "seed": 5,
+        "result": "../table2/shipped.json",
+        "result_row": "the shipped policy",
+    }
+    text = build_report(ReportConfig(results_dir=tmp_path, reps=100)).read_text()
+    aggregates = text[text.index("## Over training seeds") :]
+    assert f"| {row} | 3 (5, 7, 8) | 0.933 (" in aggregates  # (0.9 + 0.95 + 0.95) / 3
+    blocked = aggregates[aggregates.index("### Blocked-path tasks") :]
+    assert f"| {row} | 3 (5, 7, 8) | 0.667 (" in blocked
+    # The shipped file's row is one of the set's runs, not a row of its own; the other rows stay.
+    assert "| the shipped policy |" not in aggregates
+    assert "| RRT with full model | - (not trained) |" in aggregates
+    assert "- `more/seeds.json` (`python make_seeds.py`): seed 5 is the shipped policy" in text
+
+
+def test_a_seed_set_names_a_missing_result_in_one_line(tmp_path):
+    write_results(tmp_path)
+    present = table2_file(tmp_path / "more" / "a.json", "a", 0.9, 0.8)
+    out = write_seed_set({"r": [(0, present)]}, tmp_path / "more" / "seeds.json", "c", "n")
+    present.unlink()
+    with pytest.raises(FileNotFoundError, match="seeds.json: result file not found: a.json"):
+        build_report(ReportConfig(results_dir=tmp_path, reps=50))
+    assert out.is_file()
+
+
+def test_a_seed_run_needs_a_file_of_one_row_name(tmp_path):
+    path = tmp_path / "two.json"
+    rows = [ObstacleRow(n, 4, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0).__dict__ for n in ("a", "b")]
+    path.write_text(json.dumps({"rows": rows}))
+    with pytest.raises(ValueError, match="expected one row name"):
+        table2_row_name(path)
 
 
 def test_mixed_task_runs_draw_their_curves_in_both_obstacle_figures(tmp_path):

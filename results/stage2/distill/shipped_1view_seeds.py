@@ -13,7 +13,8 @@ it on the 200 + 200 test tasks alone and as the hybrid (shipped_1view/seed<k>_*.
 evaluation carries its row's name, that of the shipped seed-0 row it adds a seed to). Each step
 is skipped when its output exists, so the script resumes. Last it prints, per row and task
 family, the mean success over seeds with rliable's 95% stratified-bootstrap interval and each
-seed's success and collision rate, and writes them to shipped_1view/seeds.txt.
+seed's success and collision rate, and writes them to shipped_1view/seeds.txt; the seed set
+shipped_1view/seeds.json lets `clamgen report` aggregate the rows over the seeds.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
 from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
@@ -117,6 +118,18 @@ def main() -> None:
     text = summarize(args.seeds)
     print(text)
     (OUT / "seeds.txt").write_text(text + "\n")
+    rows = {}
+    for key, (_, _, shipped) in ROWS.items():
+        found = [(seed, OUT / f"seed{seed}_{key}.json") for seed in args.seeds]
+        rows[table2_row_name(TABLE2 / shipped)] = [(0, TABLE2 / shipped)] + [
+            (seed, path) for seed, path in found if path.is_file()
+        ]
+    command = "python results/stage2/distill/shipped_1view_seeds.py --summarize-only"
+    note = (
+        "seed 0 is the policy shipped until session 24; seed k pools the 1-view run of seed k "
+        "with the 2-view run of seed k + 2 of the shipped-1view sweep"
+    )
+    write_seed_set(rows, OUT / "seeds.json", command, note)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,8 @@ lost machine's `runs/`, so their shield rows have the shipped seed only. Prints,
 of views and task family, the mean success and collision rate over seeds with rliable's 95%
 stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt; then the
 blocked-path issue's aims against the means over seeds (`aims_table`), written to aims.md
-(the README's Status quotes it; a test keeps the two the same).
+(the README's Status quotes it; a test keeps the two the same), and the seed set
+`seeds/summary.json` through which `clamgen report` aggregates these rows over their seeds.
 
     python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1] [--seeds 7 8]
     python results/stage2/ensemble/shipped_seeds.py --summarize-only
@@ -40,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clamgen.experiments.aggregate import row_scores, seed_lines
+from clamgen.experiments.aggregate import seed_summary, write_seed_set
 from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
@@ -172,17 +173,29 @@ def aims_table() -> str:
     return "\n".join(lines)
 
 
+def seed_rows(views: int) -> dict[str, list[tuple[int, Path]]]:
+    """{row name: [(seed, its test row JSON), ...]} for each way of acting."""
+    return {_name(views, kind): _rows(views, kind) for kind in KINDS}
+
+
 def summarize(views: int) -> str:
-    lines = []
-    for kind in KINDS:
-        found = [(SHIPPED_SEED, row_scores(SHIPPED_ROWS[views, kind]))]
-        for seed in SEEDS[views]:
-            path = _out(views, seed, kind).with_suffix(".json")
-            if path.is_file():
-                found.append((seed, row_scores(path)))
-        lines.append(f"{_name(views, kind)}; {len(found)} seeds {[s for s, _ in found]}")
-        lines += seed_lines([scores for _, scores in found], FAMILIES)
-    return "\n".join(lines)
+    return seed_summary(seed_rows(views), FAMILIES)
+
+
+def write_seeds() -> Path:
+    """`seeds/summary.json`: every evaluated seed of each row, for `clamgen report`."""
+    rows = {
+        name: runs
+        for views in sorted(SEEDS, reverse=True)
+        for name, runs in seed_rows(views).items()
+    }
+    command = "python results/stage2/ensemble/shipped_seeds.py --summarize-only"
+    note = (
+        "seed 5 is the shipped policy; seeds 7 and 8 (and 9 for one view) repeat its "
+        "regression and DAgger continuation with that distill seed on the same pooled data (3 "
+        "views: on a pool rebuilt from the same runs' commands)"
+    )
+    return write_seed_set(rows, OUT / "summary.json", command, note)
 
 
 def main() -> None:
@@ -207,6 +220,7 @@ def main() -> None:
     aims = aims_table()
     print(aims)
     (HERE / "aims.md").write_text(aims + "\n")
+    print("wrote", write_seeds().relative_to(ROOT))
 
 
 if __name__ == "__main__":

@@ -24,7 +24,8 @@ as the hybrid, choosing nothing (`student<V>_seed<k>r.json`, `planned<V>_fine_se
 here; skipped when they exist). Prints, per number of views and task family, the hybrid's
 mean success over seeds with rliable's 95% stratified-bootstrap interval and each seed's
 success and collision rate (then the same for the students alone), and writes
-camera_hybrid_seeds.txt.
+camera_hybrid_seeds.txt; the seed set camera_hybrid_seeds.json lets `clamgen report` aggregate
+the hybrid rows over the seeds (the students alone are rows of the sweeps named above).
 
     python results/stage2/shield/camera_hybrid_seeds.py [--views 3 2] [--seeds 1 2]
     python results/stage2/shield/camera_hybrid_seeds.py --summarize-only
@@ -38,7 +39,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -113,6 +114,21 @@ def main() -> None:
     text = "\n".join(summarize(views) for views in (3, 2))
     print(text)
     (HERE / "camera_hybrid_seeds.txt").write_text(text + "\n")
+    rows = {}
+    for views in (3, 2):
+        shipped = TABLE2 / f"planned_fine_{SHIPPED[views]}.json"
+        runs = [(0, shipped)] + [
+            (seed, _out(views, seed, True).with_suffix(".json"))
+            for seed in SEEDS[views]
+            if _out(views, seed, True).with_suffix(".json").is_file()
+        ]
+        rows[table2_row_name(shipped)] = runs
+    command = "python results/stage2/shield/camera_hybrid_seeds.py --summarize-only"
+    note = (
+        "seed 0 is the policy shipped until session 24; the others are its recipe trained "
+        "again from the sweep's commands (runs/reseed/), not the sweep's own runs of that seed"
+    )
+    write_seed_set(rows, HERE / "camera_hybrid_seeds.json", command, note)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@ shipped `residual-3views` recipe: seed 0 is the shipped policy
 (results/table2/shielded_residual-3views.json, planned_residual-3views.json), seeds 1 and 2
 the lookahead-fixed sweep's runs (fixed3_seed*_shielded.json, fixed3_seed*_planned.json here).
 Mean success and mean collision rate per task family with rliable's 95% stratified-bootstrap
-intervals, and each seed's values:
+intervals, and each seed's values; writes the seed set `three_seeds.json` through which
+`clamgen report` aggregates the two rows over the seeds:
 
     python results/stage2/shield/three_seeds.py
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
 
 HERE = Path(__file__).resolve().parent
 TABLE2 = HERE.parents[1] / "table2"
@@ -27,12 +28,21 @@ VARIANTS = {
 
 
 def main() -> None:
+    rows = {}
     for variant, (shipped, other) in VARIANTS.items():
+        files = [TABLE2 / shipped] + [HERE / other.format(s) for s in (1, 2)]
+        rows[table2_row_name(files[0])] = list(zip((0, 1, 2), files, strict=True))
         seeds = [row_scores(TABLE2 / shipped)] + [
             row_scores(HERE / other.format(s)) for s in (1, 2)
         ]
         print(f"{variant} (3 seeds: 0 shipped, 1, 2)")
         print("\n".join(seed_lines(seeds, FAMILIES)))
+    command = "python results/stage2/shield/three_seeds.py"
+    note = (
+        "seed 0 is the policy shipped until session 24, seeds 1 and 2 the lookahead-fixed "
+        "sweep's runs"
+    )
+    write_seed_set(rows, HERE / "three_seeds.json", command, note)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ evaluated once on the 200 + 200 test tasks with the 2-view hybrid as it was then
 hybrid reads 128-pixel depth cameras since session 18), choosing nothing
 (planned2_seed<k>.json here; skipped when it exists). Prints, per task family, the mean
 success with rliable's 95% stratified-bootstrap interval and each seed's success and
-collision rate, and writes them to two_view_seeds.txt.
+collision rate, and writes them to two_view_seeds.txt; the seed set two_view_seeds.json lets
+`clamgen report` aggregate the row over the seeds.
 
     clamgen sweep results/sweeps/shipped-1view.toml --max-concurrent 1   # the DAgger runs
     python results/stage2/shield/two_view_seeds.py [--summarize-only]
@@ -21,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines
+from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -76,6 +77,18 @@ def main() -> None:
     text = summarize()
     print(text)
     (HERE / "two_view_seeds.txt").write_text(text + "\n")
+    shipped = TABLE2 / "planned_residual-2views.json"
+    runs = [(0, shipped)] + [
+        (seed, HERE / f"planned2_seed{seed}.json")
+        for seed in SEEDS
+        if (HERE / f"planned2_seed{seed}.json").is_file()
+    ]
+    command = "python results/stage2/shield/two_view_seeds.py --summarize-only"
+    note = (
+        "seed 0 is the policy shipped until session 24; seeds 3 and 4 the shipped-1view "
+        "sweep's 2-view runs"
+    )
+    write_seed_set({table2_row_name(shipped): runs}, HERE / "two_view_seeds.json", command, note)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +38,8 @@ condition, about 100 times the cost of a mean."""
 DEFAULT_SEED = 0
 PROFILE_TAUS = np.linspace(0.0, 1.0, 101)
 """Success thresholds of the performance profiles."""
+SEED_SET_KIND = "clamgen-seeds"
+"""The `kind` of a seed set's JSON (`write_seed_set`), which `clamgen report` aggregates."""
 
 
 @contextlib.contextmanager
@@ -163,6 +166,47 @@ def seed_lines(runs: Sequence[Mapping[str, tuple[float, float]]], families: Sequ
         )
         for family in families
     ]
+
+
+def table2_row_name(path: str | Path) -> str:
+    """The one row name of a `clamgen eval --table 2` JSON (its rows are the task families)."""
+    names = {row["name"] for row in json.loads(Path(path).read_text())["rows"]}
+    if len(names) != 1:
+        raise ValueError(f"{path}: expected one row name, found {sorted(names)}")
+    return names.pop()
+
+
+def seed_summary(rows: Mapping[str, Sequence[tuple[int, Path]]], families: Sequence[str]) -> str:
+    """Text for rows evaluated on several training seeds, {row: [(seed, Table 2 JSON), ...]}:
+    per row a line with its seeds, then `seed_lines`."""
+    lines = []
+    for row, runs in rows.items():
+        lines.append(f"{row}; {len(runs)} seeds {[seed for seed, _ in runs]}")
+        lines += seed_lines([row_scores(path) for _, path in runs], families)
+    return "\n".join(lines)
+
+
+def write_seed_set(
+    rows: Mapping[str, Sequence[tuple[int, Path]]], out: Path, command: str, note: str
+) -> Path:
+    """Write `out`, a seed set: for each row (a name of our choosing) its runs, each a training
+    seed and the `clamgen eval --table 2` JSON holding its test scores (named relative to `out`'s
+    folder, with that file's own row name). `command` writes it again; `note` says what the
+    seeds vary. `clamgen report` reads the scores from those files and aggregates each row over
+    its seeds; nothing is copied."""
+    runs = [
+        {
+            "row": row,
+            "seed": int(seed),
+            "result": Path(os.path.relpath(Path(path).resolve(), out.parent.resolve())).as_posix(),
+            "result_row": table2_row_name(path),
+        }
+        for row, found in rows.items()
+        for seed, path in found
+    ]
+    data = {"kind": SEED_SET_KIND, "command": command, "note": note, "runs": runs}
+    out.write_text(json.dumps(data, indent=1) + "\n")
+    return out
 
 
 def probability_of_improvement(

@@ -3,9 +3,14 @@
 Reads (whatever exists):
 - sweep summaries (`clamgen sweep`; any `results/**/*.json` of kind `clamgen-sweep`, or
   `--sweep PATH`): every run's test scores and validation curve, several seeds per row;
+- seed sets (any `results/**/*.json` of kind `clamgen-seeds`, written by the scripts that train
+  and evaluate several seeds of a recipe outside a sweep, `aggregate.write_seed_set`): a row's
+  runs, each a training seed and the `clamgen eval --table 2` file (and row in it) that holds
+  its test scores;
 - `results/**/table1_*.json` (from `clamgen eval --table 1`) and `results/table2/*.json`
-  (`clamgen eval --table 2`): single runs, used for rows that no sweep covers; their curves come
-  from the `metrics.csv` of the run directory under `results/` named like the policy's;
+  (`clamgen eval --table 2`): single runs, used for rows that no sweep or seed set covers (a
+  table row that a seed set counts as one of its runs is not a row of its own); their curves
+  come from the `metrics.csv` of the run directory under `results/` named like the policy's;
 - `results/benchmarks/*.csv` (speed comparisons, each against a named reference).
 Writes `REPORT.md` and `figures/*.png` into the results directory: the tables as measured, one
 figure per task family (reach, image-only reach, obstacles, blocked) with sample-efficiency
@@ -67,6 +72,7 @@ ENV_FAMILY = {
 # drawn (dashed) in the figures of both families it mixes.
 MIXED_ENV = "CLAMGen/ReachMixed-v0"
 MIXED_FAMILIES = ("obstacles", "blocked")
+SWEEP_KIND = "clamgen-sweep"
 TABLE1_ROW = {"joints": "joint policy", "images": "image-only policy (2 views)"}
 # Which row full CLAMGen is for each ablation of the paper's Table 2 (same views).
 DEFAULT_COMPARISONS = {
@@ -261,7 +267,8 @@ def _single(run_dir, row, table, observation, scores, path) -> RunResult:
     )
 
 
-def find_sweep_summaries(root: Path) -> list[Path]:
+def find_summaries(root: Path, kind: str = SWEEP_KIND) -> list[Path]:
+    """The JSON files under `root` of this `kind` (a sweep summary or a seed set)."""
     found = []
     for path in sorted(root.rglob("*.json")):
         if path.stat().st_size > 50 * 2**20:
@@ -270,20 +277,56 @@ def find_sweep_summaries(root: Path) -> list[Path]:
             data = json.loads(path.read_text())
         except (ValueError, UnicodeDecodeError):
             continue
-        if isinstance(data, dict) and data.get("kind") == "clamgen-sweep":
+        if isinstance(data, dict) and data.get("kind") == kind:
             found.append(path)
     return found
+
+
+def find_sweep_summaries(root: Path) -> list[Path]:
+    return find_summaries(root, SWEEP_KIND)
+
+
+def results_from_seed_sets(paths: Iterable[Path]) -> tuple[list[RunResult], set[tuple[Path, str]]]:
+    """The runs of seed sets, and the (result file, row name) pairs they read, which are then no
+    single-run rows of their own. A row and seed that two sets share counts once."""
+    results, used, seen = [], set(), set()
+    for path in paths:
+        for run in json.loads(path.read_text())["runs"]:
+            result = (path.parent / run["result"]).resolve()
+            if not result.is_file():
+                raise FileNotFoundError(f"{path}: result file not found: {run['result']}")
+            rows = [
+                r for r in json.loads(result.read_text())["rows"] if r["name"] == run["result_row"]
+            ]
+            if not rows:
+                raise ValueError(f"{path}: no row {run['result_row']!r} in {run['result']}")
+            used.add((result, run["result_row"]))
+            if (run["row"], run["seed"]) in seen:
+                continue
+            seen.add((run["row"], run["seed"]))
+            scores = {r["family"]: r["success_rate"] for r in rows}
+            results.append(
+                RunResult(run["row"], 2, "images", scores, seed=run["seed"], source=str(path))
+            )
+    return results, used
 
 
 def collect_results(
     root: Path, sweeps: Iterable[Path] = ()
 ) -> tuple[list[RunResult], dict[str, str]]:
-    """Every run result; rows covered by a sweep take their runs from the sweep only."""
+    """Every run result; rows covered by a sweep or a seed set take their runs from those only,
+    and a table file's row that a seed set reads is no row of its own."""
     paths = list(dict.fromkeys([*find_sweep_summaries(root), *map(Path, sweeps)]))
     swept, comparisons = results_from_sweeps(paths)
-    swept_rows = {r.row for r in swept}
-    single = [r for r in results_from_tables(root) if r.row not in swept_rows]
-    return swept + single, {**DEFAULT_COMPARISONS, **comparisons}
+    seeded, used = results_from_seed_sets(find_summaries(root, agg.SEED_SET_KIND))
+    covered = {r.row for r in swept} | {r.row for r in seeded}
+    seeded = [r for r in seeded if r.row not in {s.row for s in swept}]
+    single = [
+        r
+        for r in results_from_tables(root)
+        if r.row not in covered and (Path(r.source).resolve(), r.row) not in used
+    ]
+    return swept + seeded + single, {**DEFAULT_COMPARISONS, **comparisons}
 
 
 # ------------------------------------------------------------------------- aggregates
@@ -815,6 +858,7 @@ def build_report(config: ReportConfig) -> Path:
             "",
         ]
     results, comparisons = collect_results(root, config.sweep)
+    set_sources = set(map(str, find_summaries(root, agg.SEED_SET_KIND)))
     families = {}
     for family in FAMILIES:
         aggregate = aggregate_family(results, family, config.reps, config.seed)
@@ -836,6 +880,13 @@ def build_report(config: ReportConfig) -> Path:
             "(a single run's profile is one step at its score).",
             "",
         ]
+        seed_sets = sorted({Path(r.source) for r in results if r.source in set_sources})
+        if seed_sets:
+            lines += ["Rows evaluated on several seeds outside a sweep (seed sets):", ""]
+            for path in seed_sets:
+                data = json.loads(path.read_text())
+                lines.append(f"- `{path.relative_to(root)}` (`{data['command']}`): {data['note']}")
+            lines.append("")
         colours = row_colours(r for f in families.values() for r in f.rows)
         for family, aggregate in families.items():
             figure = plot_family(aggregate, colours, figures / f"family_{family}.png")
