@@ -197,12 +197,36 @@ def test_a_seed_set_makes_one_row_of_its_runs(tmp_path):
     assert "- `more/seeds.json` (`python make_seeds.py`): seed 5 is the shipped policy" in text
 
 
+def test_a_seed_set_compares_a_wrapper_with_the_policy_alone(tmp_path):
+    write_results(tmp_path)
+    alone, wrapped = "policies alone", "policies through a wrapper"
+    rows = {
+        alone: [
+            (s, table2_file(tmp_path / "s" / f"alone{s}.json", "a", 0.9, 0.5 + 0.01 * s))
+            for s in (1, 2, 3)
+        ],
+        wrapped: [
+            (s, table2_file(tmp_path / "s" / f"wrapped{s}.json", "w", 0.9, 0.9 + 0.01 * s))
+            for s in (1, 2, 3)
+        ],
+    }
+    write_seed_set(rows, tmp_path / "s" / "seeds.json", "c", "n", compare=[(wrapped, alone)])
+    text = build_report(ReportConfig(results_dir=tmp_path, reps=100)).read_text()
+    section = text[text.index("### What the test-time wrappers add") :]
+    line = next(x for x in section.splitlines() if x.startswith(f"| {alone} | {wrapped} |"))
+    # Equal on the standard tasks (every pair ties), every wrapped run ahead on blocked.
+    assert "| 0.50 (0.50-0.50) | undecided |" in line
+    assert "| 1.00 (1.00-1.00) | holds: the wrapper better |" in line
+    with pytest.raises(ValueError, match="compare names rows not in the set"):
+        write_seed_set(rows, tmp_path / "s" / "x.json", "c", "n", compare=[("nope", alone)])
+
+
 def test_a_seed_set_names_a_missing_result_in_one_line(tmp_path):
     write_results(tmp_path)
     present = table2_file(tmp_path / "more" / "a.json", "a", 0.9, 0.8)
     out = write_seed_set({"r": [(0, present)]}, tmp_path / "more" / "seeds.json", "c", "n")
     present.unlink()
-    with pytest.raises(FileNotFoundError, match="seeds.json: result file not found: a.json"):
+    with pytest.raises(FileNotFoundError, match=r"seeds\.json: result file not found: a\.json"):
         build_report(ReportConfig(results_dir=tmp_path, reps=50))
     assert out.is_file()
 

@@ -195,7 +195,12 @@ def write_seeds() -> Path:
         "regression and DAgger continuation with that distill seed on the same pooled data (3 "
         "views: on a pool rebuilt from the same runs' commands)"
     )
-    return write_seed_set(rows, OUT / "summary.json", command, note)
+    compare = [
+        (_name(views, kind), _name(views, "alone"))
+        for views in sorted(SEEDS, reverse=True)
+        for kind in ("hybrid", "shielded")
+    ]
+    return write_seed_set(rows, OUT / "summary.json", command, note, compare)
 
 
 def main() -> None:

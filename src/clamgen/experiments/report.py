@@ -311,6 +311,15 @@ def results_from_seed_sets(paths: Iterable[Path]) -> tuple[list[RunResult], set[
     return results, used
 
 
+def seed_set_pairs(paths: Iterable[Path]) -> list[tuple[str, str]]:
+    """The (X, Y) row pairs that seed sets ask to compare (`"compare"`: X a policy through a
+    test-time wrapper, Y the same policies alone), in order, each once."""
+    pairs = [
+        tuple(pair) for path in paths for pair in json.loads(path.read_text()).get("compare", [])
+    ]
+    return list(dict.fromkeys(pairs))
+
+
 def collect_results(
     root: Path, sweeps: Iterable[Path] = ()
 ) -> tuple[list[RunResult], dict[str, str]]:
@@ -432,51 +441,98 @@ def aggregate_markdown(result: FamilyAggregate) -> str:
     return "\n".join(lines)
 
 
+def _poi_lines(
+    families: dict[str, FamilyAggregate],
+    pairs: list[tuple[str, str]],
+    shown: list[str],
+    names: tuple[str, str],
+    reps: int,
+    seed: int,
+) -> list[str]:
+    """Table lines of P(X > Y) for each (X, Y) of `pairs` in each family of `shown`, with a
+    verdict; `names` are what X and Y are called in the verdicts."""
+    lines = []
+    for x, y in pairs:
+        cells = []
+        for family in shown:
+            scores = families[family].scores
+            n_x, n_y = (scores[r].shape[0] if r in scores else 0 for r in (x, y))
+            if min(n_x, n_y) < 2:
+                cells += [f"- (runs: {n_x} / {n_y})", "needs >= 2 runs per row"]
+                continue
+            poi = agg.probability_of_improvement(
+                scores, [(x, y)], reps=min(reps, agg.POI_REPS), seed=seed
+            )[(x, y)]
+            verdict = (
+                f"holds: {names[0]} better"
+                if poi.low > 0.5
+                else f"fails: {names[1]} better"
+                if poi.high < 0.5
+                else "undecided"
+            )
+            cells += [f"{poi.value:.2f} ({poi.low:.2f}-{poi.high:.2f})", verdict]
+        lines.append(f"| {y} | {x} | {' | '.join(cells)} |")
+    return lines
+
+
+POI_TEXT = (
+    "P(X > Y): the probability that a run of X succeeds more often than a run of Y on the "
+    "same test tasks (ties count one half; rliable's probability of improvement, intervals "
+    "from independent stratified bootstraps of both rows' runs)."
+)
+
+
+def _present(families: dict[str, FamilyAggregate], pairs, shown) -> list[tuple[str, str]]:
+    return [
+        (x, y)
+        for x, y in pairs
+        if any(x in families[f].scores and y in families[f].scores for f in shown)
+    ]
+
+
 def improvement_markdown(
     families: dict[str, FamilyAggregate], comparisons: dict[str, str], reps: int, seed: int
 ) -> str | None:
     """P(full CLAMGen > ablation) per Table 2 family, with what it says about each claim."""
     shown = [f for f in ("obstacles", "blocked") if f in families]
-    pairs = [
-        (reference, ablation)
-        for ablation, reference in comparisons.items()
-        if any(ablation in families[f].scores and reference in families[f].scores for f in shown)
-    ]
+    pairs = _present(families, [(ref, abl) for abl, ref in comparisons.items()], shown)
     if not pairs:
         return None
     header = " | ".join(f"P(full > ablation), {f} (95% CI) | verdict, {f}" for f in shown)
     lines = [
-        "P(X > Y): the probability that a run of X succeeds more often than a run of Y on the "
-        "same test tasks (ties count one half; rliable's probability of improvement, intervals "
-        "from independent stratified bootstraps of both rows' runs). The paper claims full "
-        "CLAMGen beats each ablation; a claim holds here when the interval lies above 0.5, "
-        "fails when it lies below, and is undecided when it spans 0.5. It needs >= 2 runs "
-        "per row.",
+        POI_TEXT + " The paper claims full CLAMGen beats each ablation; a claim holds here when "
+        "the interval lies above 0.5, fails when it lies below, and is undecided when it spans "
+        "0.5. It needs >= 2 runs per row.",
         "",
         f"| ablation (Y) | full CLAMGen (X) | {header} |",
         "|---|---|" + "---|---|" * len(shown),
     ]
-    for reference, ablation in pairs:
-        cells = []
-        for family in shown:
-            scores = families[family].scores
-            n_x, n_y = (scores[r].shape[0] if r in scores else 0 for r in (reference, ablation))
-            if min(n_x, n_y) < 2:
-                cells += [f"- (runs: {n_x} / {n_y})", "needs >= 2 runs per row"]
-                continue
-            poi = agg.probability_of_improvement(
-                scores, [(reference, ablation)], reps=min(reps, agg.POI_REPS), seed=seed
-            )[(reference, ablation)]
-            verdict = (
-                "holds: full CLAMGen better"
-                if poi.low > 0.5
-                else "fails: ablation better"
-                if poi.high < 0.5
-                else "undecided"
-            )
-            cells += [f"{poi.value:.2f} ({poi.low:.2f}-{poi.high:.2f})", verdict]
-        lines.append(f"| {ablation} | {reference} | {' | '.join(cells)} |")
-    return "\n".join(lines)
+    names = ("full CLAMGen", "ablation")
+    return "\n".join(lines + _poi_lines(families, pairs, shown, names, reps, seed))
+
+
+def wrapper_markdown(
+    families: dict[str, FamilyAggregate], pairs: list[tuple[str, str]], reps: int, seed: int
+) -> str | None:
+    """P(policy through a test-time wrapper > the policy alone) per Table 2 family, for the
+    (X with the wrapper, Y alone) pairs that seed sets name (`seed_set_pairs`; beyond the
+    paper)."""
+    shown = [f for f in ("obstacles", "blocked") if f in families]
+    pairs = _present(families, pairs, shown)
+    if not pairs:
+        return None
+    header = " | ".join(f"P(X > Y), {f} (95% CI) | verdict, {f}" for f in shown)
+    lines = [
+        POI_TEXT + " X is a policy acting through a test-time wrapper (beyond the paper), Y the "
+        "same seeds' policies alone; the wrapper helps when the interval lies above 0.5. It "
+        "needs >= 2 runs per row. Success is a reach with no collision at any step; the "
+        "collision rates are in each row's Table 2 file.",
+        "",
+        f"| policy alone (Y) | with the wrapper (X) | {header} |",
+        "|---|---|" + "---|---|" * len(shown),
+    ]
+    names = ("the wrapper", "the policy alone")
+    return "\n".join(lines + _poi_lines(families, pairs, shown, names, reps, seed))
 
 
 # ---------------------------------------------------------------------------- figures
@@ -901,6 +957,10 @@ def build_report(config: ReportConfig) -> Path:
         improvement = improvement_markdown(families, comparisons, config.reps, config.seed)
         if improvement:
             lines += ["### Does each component help?", "", improvement, ""]
+        pairs = seed_set_pairs(find_summaries(root, agg.SEED_SET_KIND))
+        wrappers = wrapper_markdown(families, pairs, config.reps, config.seed)
+        if wrappers:
+            lines += ["### What the test-time wrappers add (beyond the paper)", "", wrappers, ""]
     entries = speed_entries(root / "benchmarks") if (root / "benchmarks").is_dir() else []
     if entries:
         lines += [
