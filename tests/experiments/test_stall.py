@@ -9,6 +9,7 @@ from clamgen.experiments import checkpoint as ckpt
 from clamgen.experiments.pooled import file_lengths, subset
 from clamgen.experiments.stall import (
     PROGRESS_M,
+    ProgressWindow,
     StallBurst,
     StallCounter,
     StallSwitch,
@@ -134,3 +135,44 @@ def test_burst_waits_while_the_episode_progresses():
     for options in ({"after_steps": 0}, {"burst_steps": 0}, {"scale": 0.0}, {"scale": 1.5}):
         with pytest.raises(ValueError):
             StallBurst(_Constant(0.1), **options)
+
+
+def _window_rule(distances, steps, progress_m, arrived_m):
+    """The hybrid planner's rule as it was written inline before `ProgressWindow`."""
+    return (
+        len(distances) > steps
+        and distances[-1] > arrived_m
+        and distances[-1 - steps] - distances[-1] < progress_m
+    )
+
+
+def test_progress_window_is_the_planners_rule_with_its_restarts():
+    rng = np.random.default_rng(0)
+    restarts = 0
+    for _ in range(20):
+        steps = int(rng.integers(1, 12))
+        window = ProgressWindow(steps, 0.01, arrived_m=0.02)
+        history = []
+        # A tip that approaches, hovers and backs off at random.
+        for distance in np.abs(0.3 + np.cumsum(rng.normal(-0.004, 0.01, 120))):
+            history.append(float(distance))
+            stalled = window.stalled(distance)
+            assert stalled == _window_rule(history, steps, 0.01, 0.02)
+            if stalled and rng.random() < 0.5:  # a plan: a fresh window
+                window.restart()
+                history = history[-1:]
+                restarts += 1
+        window.reset()
+        assert not window.stalled(0.5)
+    assert restarts > 10
+
+
+def test_progress_window_waits_its_steps_and_not_at_the_target():
+    window = ProgressWindow(3, 0.01, arrived_m=0.02)
+    assert [window.stalled(d) for d in (0.20, 0.20, 0.20, 0.20)] == [False, False, False, True]
+    window.reset()  # steady progress never stalls
+    assert not any(window.stalled(0.3 - 0.011 * i) for i in range(20))
+    window.reset()  # hovering at the target is arrival
+    assert not any(window.stalled(0.01) for _ in range(10))
+    with pytest.raises(ValueError, match="stuck_steps must be >= 1"):
+        ProgressWindow(0)

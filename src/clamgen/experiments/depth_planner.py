@@ -2,8 +2,9 @@
 paper).
 
 `DepthShieldPlanner` is a `DepthShield` (`clamgen.experiments.depth_shield`) that watches the
-tip's distance to the target. When it has not come `PROGRESS_M` closer in `STUCK_STEPS`
-steps (the policy pressing against an obstacle, or circling), it plans a joint path to the
+tip's distance to the target. When it has not come 1 cm closer in `STUCK_STEPS` steps
+(`clamgen.experiments.stall.ProgressWindow`: the policy pressing against an obstacle, or
+circling), it plans a joint path to the
 target with OMPL's RRT-Connect (`clamgen.baselines.rrt.plan_joint_path`), on the obstacle
 surface the shield has seen so far: a state is valid when the arm keeps the shield's margin
 from that surface and from the table. It follows the path, still through the shield, and
@@ -32,12 +33,13 @@ from clamgen.envs.reach_env import (
     SUCCESS_DISTANCE_M,
 )
 from clamgen.experiments.depth_shield import MARGIN_M, DepthShield
+from clamgen.experiments.stall import WINDOW_STEPS, ProgressWindow
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import solve_tip_position, wrap_joints
 
-STUCK_STEPS = 10
-"""Steps without `PROGRESS_M` of progress towards the target before planning."""
-PROGRESS_M = 0.01
+STUCK_STEPS = WINDOW_STEPS
+"""Steps without `WINDOW_PROGRESS_M` of progress towards the target before planning
+(`stall.ProgressWindow`)."""
 MAX_PLANS = 3
 """Plans an episode at most."""
 PLAN_TIME_S = 1.0
@@ -83,9 +85,7 @@ class DepthShieldPlanner(DepthShield):
         self.plan_margin_m = margin_m if plan_margin_m is None else plan_margin_m
         if not 0 <= self.plan_margin_m < float("inf"):
             raise ValueError(f"plan_margin_m must be a number >= 0, got {plan_margin_m}")
-        if stuck_steps < 1:
-            raise ValueError(f"stuck_steps must be >= 1, got {stuck_steps}")
-        self.stuck_steps = stuck_steps
+        self.window = ProgressWindow(stuck_steps, arrived_m=SUCCESS_DISTANCE_M)
         if plan_checks < 0:
             raise ValueError(f"plan_checks must be >= 0, got {plan_checks}")
         base = rrt if rrt is not None else RRTConfig()
@@ -102,7 +102,7 @@ class DepthShieldPlanner(DepthShield):
         self._reset_episode()
 
     def _reset_episode(self) -> None:
-        self.distances: list[float] = []
+        self.window.reset()
         self.waypoints: np.ndarray | None = None
         self._next = 0
         self._plans = 0
@@ -115,28 +115,20 @@ class DepthShieldPlanner(DepthShield):
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         joints = self.observe(obs)
         goal = np.asarray(obs["desired_goal"], np.float64)
-        self.distances.append(float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - goal)))
-        if self._stuck() and self._plans < MAX_PLANS:
+        distance = float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - goal))
+        if self.window.stalled(distance) and self._plans < MAX_PLANS:
             self._plans += 1
             self.num_plans += 1
             tic = time.perf_counter()
             self.waypoints, self._next = self.plan(joints, goal), 0
             self.episode_plan_time_s += time.perf_counter() - tic
             self.num_paths += int(self.waypoints is not None)
-            self.distances = self.distances[-1:]
+            self.window.restart()
         if self.waypoints is not None:
             action = self._follow(joints)
         else:
             action = np.asarray(self.policy.act(obs), np.float64)
         return self.shield(joints, action)
-
-    def _stuck(self) -> bool:
-        d = self.distances
-        return (
-            len(d) > self.stuck_steps
-            and d[-1] > SUCCESS_DISTANCE_M
-            and d[-1 - self.stuck_steps] - d[-1] < PROGRESS_M
-        )
 
     def _follow(self, joints: np.ndarray) -> np.ndarray:
         last = len(self.waypoints) - 1

@@ -9,16 +9,21 @@ takes the arm around whatever holds it (`results/stage2/ensemble/README.md`). Wh
 is such a stall is plain from the episode, not from one image: the tip has not come nearer for
 many steps.
 
+Two rules tell a stall, both here. `ProgressWindow` is the hybrid planner's
+(`depth_planner.DepthShieldPlanner` plans when it fires): the tip is not `WINDOW_PROGRESS_M`
+nearer the target than it was `WINDOW_STEPS` steps before, and not at the target. It forgets an
+episode's history at each plan, so that the path the planner hands over gets its own window.
 `stall_counts` counts, for each state of one episode, the steps since the tip last came
-`PROGRESS_M` nearer the target than ever before in the episode; `StallCounter` counts the same
-online; `pool_stall_counts` over pooled distillation data (whose parallel episodes are
-interleaved). `StallSwitch` acts with one policy and hands over to another (e.g. an *escape*
-student, regressed on the stalled states of the distillation data only: `offline.py
---stalled-only`) while the count is at least `after_steps`. Measured for the 3-view students
-(session 28), such a switch did not help: the escape student, like the students themselves,
-fits the way out of the stalls in its data but does not carry it to new tasks' stalls.
-`StallBurst` leaves a stall at random instead: a few steps of one random joint command, then
-the policy again from wherever they took the arm (the random escapes of randomized
+`PROGRESS_M` nearer the target than ever before in the episode (a count, for a switch at any
+threshold, that a step back from the best does not reset);
+`StallCounter` counts the same online; `pool_stall_counts` over pooled distillation data (whose
+parallel episodes are interleaved). `StallSwitch` acts with one policy and hands over to
+another (e.g. an *escape* student, regressed on the stalled states of the distillation data
+only: `offline.py --stalled-only`) while the count is at least `after_steps`. Measured for the
+3-view students (session 28), such a switch did not help: the escape student, like the students
+themselves, fits the way out of the stalls in its data but does not carry it to new tasks'
+stalls. `StallBurst` leaves a stall at random instead: a few steps of one random joint command,
+then the policy again from wherever they took the arm (the random escapes of randomized
 potential-field planners), needing nothing but the observation's tip and target.
 """
 
@@ -43,8 +48,45 @@ BURST_SCALE = 1.0
 range, `MAX_JOINT_DELTA_RAD` a step)."""
 
 
+WINDOW_STEPS = 10
+"""`ProgressWindow`: steps without `WINDOW_PROGRESS_M` of progress before a stall (the hybrids'
+test rows were measured with 10 and 1 cm)."""
+WINDOW_PROGRESS_M = 0.01
+
+
 def tip_distance(obs: dict[str, np.ndarray]) -> float:
     return float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - obs["desired_goal"]))
+
+
+class ProgressWindow:
+    """The hybrid planner's stall rule, online: `stalled(distance)` at each state of an episode,
+    the tip's distance to its target there, is True once the tip is not `progress_m` nearer
+    than it was `steps` states before, while it is farther than `arrived_m` (at the target, a
+    hovering tip has arrived, not stalled). `restart()` forgets all but the latest distance (a
+    new window after a plan); `reset()` at an episode's start."""
+
+    def __init__(
+        self, steps: int = WINDOW_STEPS, progress_m: float = WINDOW_PROGRESS_M, arrived_m=0.0
+    ) -> None:
+        if steps < 1:
+            raise ValueError(f"stuck_steps must be >= 1, got {steps}")
+        self.steps, self.progress_m, self.arrived_m = steps, progress_m, arrived_m
+        self.reset()
+
+    def reset(self) -> None:
+        self.distances: list[float] = []
+
+    def restart(self) -> None:
+        self.distances = self.distances[-1:]
+
+    def stalled(self, distance: float) -> bool:
+        d = self.distances
+        d.append(float(distance))
+        return (
+            len(d) > self.steps
+            and d[-1] > self.arrived_m
+            and d[-1 - self.steps] - d[-1] < self.progress_m
+        )
 
 
 class StallCounter:
