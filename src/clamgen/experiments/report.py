@@ -441,17 +441,72 @@ def aggregate_markdown(result: FamilyAggregate) -> str:
     return "\n".join(lines)
 
 
-def _poi_lines(
+POI_TEXT = (
+    "P(X > Y): the probability that a run of X succeeds more often than a run of Y on the "
+    "same test tasks (ties count one half; rliable's probability of improvement, intervals "
+    "from independent stratified bootstraps of both rows' runs)."
+)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """How a table of P(X > Y) names its rows (X, Y) and verdicts, and what it says first."""
+
+    text: str
+    x: str
+    y: str
+    p_label: str
+    x_better: str
+    y_better: str
+
+
+PAPER_CLAIMS = Comparison(
+    POI_TEXT + " The paper claims full CLAMGen beats each ablation; a claim holds here when the "
+    "interval lies above 0.5, fails when it lies below, and is undecided when it spans 0.5. It "
+    "needs >= 2 runs per row.",
+    "full CLAMGen (X)",
+    "ablation (Y)",
+    "P(full > ablation)",
+    "full CLAMGen",
+    "ablation",
+)
+WRAPPERS = Comparison(
+    POI_TEXT + " X is a policy acting through a test-time wrapper (beyond the paper), Y the same "
+    "seeds' policies alone; the wrapper helps when the interval lies above 0.5. It needs >= 2 "
+    "runs per row. Success is a reach with no collision at any step; the collision rates are "
+    "in each row's Table 2 file.",
+    "with the wrapper (X)",
+    "policy alone (Y)",
+    "P(X > Y)",
+    "the wrapper",
+    "the policy alone",
+)
+
+
+def comparison_markdown(
     families: dict[str, FamilyAggregate],
-    pairs: list[tuple[str, str]],
-    shown: list[str],
-    names: tuple[str, str],
+    pairs: Iterable[tuple[str, str]],
+    how: Comparison,
     reps: int,
     seed: int,
-) -> list[str]:
-    """Table lines of P(X > Y) for each (X, Y) of `pairs` in each family of `shown`, with a
-    verdict; `names` are what X and Y are called in the verdicts."""
-    lines = []
+) -> str | None:
+    """P(X > Y) per Table 2 family for each (X, Y) of `pairs` that a family has both rows of,
+    with a verdict; None when there is none."""
+    shown = [f for f in ("obstacles", "blocked") if f in families]
+    pairs = [
+        (x, y)
+        for x, y in pairs
+        if any(x in families[f].scores and y in families[f].scores for f in shown)
+    ]
+    if not pairs:
+        return None
+    header = " | ".join(f"{how.p_label}, {f} (95% CI) | verdict, {f}" for f in shown)
+    lines = [
+        how.text,
+        "",
+        f"| {how.y} | {how.x} | {header} |",
+        "|---|---|" + "---|---|" * len(shown),
+    ]
     for x, y in pairs:
         cells = []
         for family in shown:
@@ -464,75 +519,23 @@ def _poi_lines(
                 scores, [(x, y)], reps=min(reps, agg.POI_REPS), seed=seed
             )[(x, y)]
             verdict = (
-                f"holds: {names[0]} better"
+                f"holds: {how.x_better} better"
                 if poi.low > 0.5
-                else f"fails: {names[1]} better"
+                else f"fails: {how.y_better} better"
                 if poi.high < 0.5
                 else "undecided"
             )
             cells += [f"{poi.value:.2f} ({poi.low:.2f}-{poi.high:.2f})", verdict]
         lines.append(f"| {y} | {x} | {' | '.join(cells)} |")
-    return lines
-
-
-POI_TEXT = (
-    "P(X > Y): the probability that a run of X succeeds more often than a run of Y on the "
-    "same test tasks (ties count one half; rliable's probability of improvement, intervals "
-    "from independent stratified bootstraps of both rows' runs)."
-)
-
-
-def _present(families: dict[str, FamilyAggregate], pairs, shown) -> list[tuple[str, str]]:
-    return [
-        (x, y)
-        for x, y in pairs
-        if any(x in families[f].scores and y in families[f].scores for f in shown)
-    ]
+    return "\n".join(lines)
 
 
 def improvement_markdown(
     families: dict[str, FamilyAggregate], comparisons: dict[str, str], reps: int, seed: int
 ) -> str | None:
     """P(full CLAMGen > ablation) per Table 2 family, with what it says about each claim."""
-    shown = [f for f in ("obstacles", "blocked") if f in families]
-    pairs = _present(families, [(ref, abl) for abl, ref in comparisons.items()], shown)
-    if not pairs:
-        return None
-    header = " | ".join(f"P(full > ablation), {f} (95% CI) | verdict, {f}" for f in shown)
-    lines = [
-        POI_TEXT + " The paper claims full CLAMGen beats each ablation; a claim holds here when "
-        "the interval lies above 0.5, fails when it lies below, and is undecided when it spans "
-        "0.5. It needs >= 2 runs per row.",
-        "",
-        f"| ablation (Y) | full CLAMGen (X) | {header} |",
-        "|---|---|" + "---|---|" * len(shown),
-    ]
-    names = ("full CLAMGen", "ablation")
-    return "\n".join(lines + _poi_lines(families, pairs, shown, names, reps, seed))
-
-
-def wrapper_markdown(
-    families: dict[str, FamilyAggregate], pairs: list[tuple[str, str]], reps: int, seed: int
-) -> str | None:
-    """P(policy through a test-time wrapper > the policy alone) per Table 2 family, for the
-    (X with the wrapper, Y alone) pairs that seed sets name (`seed_set_pairs`; beyond the
-    paper)."""
-    shown = [f for f in ("obstacles", "blocked") if f in families]
-    pairs = _present(families, pairs, shown)
-    if not pairs:
-        return None
-    header = " | ".join(f"P(X > Y), {f} (95% CI) | verdict, {f}" for f in shown)
-    lines = [
-        POI_TEXT + " X is a policy acting through a test-time wrapper (beyond the paper), Y the "
-        "same seeds' policies alone; the wrapper helps when the interval lies above 0.5. It "
-        "needs >= 2 runs per row. Success is a reach with no collision at any step; the "
-        "collision rates are in each row's Table 2 file.",
-        "",
-        f"| policy alone (Y) | with the wrapper (X) | {header} |",
-        "|---|---|" + "---|---|" * len(shown),
-    ]
-    names = ("the wrapper", "the policy alone")
-    return "\n".join(lines + _poi_lines(families, pairs, shown, names, reps, seed))
+    pairs = [(reference, ablation) for ablation, reference in comparisons.items()]
+    return comparison_markdown(families, pairs, PAPER_CLAIMS, reps, seed)
 
 
 # ---------------------------------------------------------------------------- figures
@@ -958,7 +961,7 @@ def build_report(config: ReportConfig) -> Path:
         if improvement:
             lines += ["### Does each component help?", "", improvement, ""]
         pairs = seed_set_pairs(find_summaries(root, agg.SEED_SET_KIND))
-        wrappers = wrapper_markdown(families, pairs, config.reps, config.seed)
+        wrappers = comparison_markdown(families, pairs, WRAPPERS, config.reps, config.seed)
         if wrappers:
             lines += ["### What the test-time wrappers add (beyond the paper)", "", wrappers, ""]
     entries = speed_entries(root / "benchmarks") if (root / "benchmarks").is_dir() else []
