@@ -26,7 +26,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
+from clamgen.experiments.aggregate import seed_summary, table2_row_name, write_seed_set
 from clamgen.experiments.depth_planner import HYBRID
 
 HERE = Path(__file__).resolve().parent
@@ -93,17 +93,15 @@ def _evaluate(seed: int, student: Path) -> None:
         _run([*command, *flags, "--num-tasks", "200", "--name", name, "--out", str(out)])
 
 
-def summarize(seeds: list[int]) -> str:
-    lines = []
-    for key, (name, _, shipped) in ROWS.items():
-        found = [(0, row_scores(TABLE2 / shipped))]
-        for seed in seeds:
-            path = OUT / f"seed{seed}_{key}.json"
-            if path.is_file():
-                found.append((seed, row_scores(path)))
-        lines.append(f"{key}: {name}; {len(found)} seeds {[s for s, _ in found]}")
-        lines += seed_lines([scores for _, scores in found], FAMILIES)
-    return "\n".join(lines)
+def seed_rows(seeds: list[int]) -> dict[str, list[tuple[int, Path]]]:
+    """{row name (the shipped policy's): [(seed, its test row JSON), ...]}, seed 0 first."""
+    rows = {}
+    for key, (_, _, shipped) in ROWS.items():
+        found = [(seed, OUT / f"seed{seed}_{key}.json") for seed in seeds]
+        rows[table2_row_name(TABLE2 / shipped)] = [(0, TABLE2 / shipped)] + [
+            (seed, path) for seed, path in found if path.is_file()
+        ]
+    return rows
 
 
 def main() -> None:
@@ -115,15 +113,10 @@ def main() -> None:
     if not args.summarize_only:
         for seed in args.seeds:
             _evaluate(seed, _student(seed))
-    text = summarize(args.seeds)
+    rows = seed_rows(args.seeds)
+    text = seed_summary(rows, FAMILIES)
     print(text)
     (OUT / "seeds.txt").write_text(text + "\n")
-    rows = {}
-    for key, (_, _, shipped) in ROWS.items():
-        found = [(seed, OUT / f"seed{seed}_{key}.json") for seed in args.seeds]
-        rows[table2_row_name(TABLE2 / shipped)] = [(0, TABLE2 / shipped)] + [
-            (seed, path) for seed, path in found if path.is_file()
-        ]
     command = "python results/stage2/distill/shipped_1view_seeds.py --summarize-only"
     note = (
         "seed 0 is the policy shipped until session 24; seed k pools the 1-view run of seed k "

@@ -19,11 +19,11 @@ and acting (the preset's bf16 autocast applies only where the CPU computes bf16;
 `results/stage2/precision/`); seed 0 and the 2-view seed 3 ran on a CPU with it. Each eval
 file records its `machine`.
 
-Each student is evaluated once its run has finished, on the 200 + 200 test tasks, alone and
-as the hybrid, choosing nothing (`student<V>_seed<k>r.json`, `planned<V>_fine_seed<k>r.json`
-here; skipped when they exist). Prints, per number of views and task family, the hybrid's
-mean success over seeds with rliable's 95% stratified-bootstrap interval and each seed's
-success and collision rate (then the same for the students alone), and writes
+Each student is evaluated once its run has finished, on the 200 + 200 test tasks, alone and as
+the hybrid, choosing nothing (`student<V>_seed<k>r.json`, `planned<V>_fine_seed<k>r.json` here,
+"r" for retrained; skipped when they exist). Prints, per number of views and task family, the
+hybrid's mean success over seeds with rliable's 95% stratified-bootstrap interval and each
+seed's success and collision rate (then the same for the students alone), and writes
 camera_hybrid_seeds.txt; the seed set camera_hybrid_seeds.json lets `clamgen report` aggregate
 the hybrid rows over the seeds (the students alone are rows of the sweeps named above).
 
@@ -39,7 +39,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
+from clamgen.experiments.aggregate import seed_summary, table2_row_name, write_seed_set
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -81,20 +81,14 @@ def _evaluate(views: int, seed: int) -> None:
         subprocess.run(command, check=True)
 
 
-def summarize(views: int) -> str:
-    lines = []
-    for hybrid in (True, False):
-        found = []
-        shipped = f"planned_fine_{SHIPPED[views]}.json" if hybrid else SHIPPED_ALONE[views]
-        found.append((0, row_scores(TABLE2 / shipped)))
-        for seed in SEEDS[views]:
-            path = _out(views, seed, hybrid).with_suffix(".json")
-            if path.is_file():
-                found.append((f"{seed}r", row_scores(path)))
-        name = _hybrid_name(views) if hybrid else _student_name(views) + ", alone"
-        lines.append(f"{name}; {len(found)} seeds {[seed for seed, _ in found]}")
-        lines += seed_lines([scores for _, scores in found], FAMILIES)
-    return "\n".join(lines)
+def seed_rows(views: int, hybrid: bool) -> dict[str, list[tuple[int, Path]]]:
+    """{row name: [(seed, its test row JSON), ...]}, the shipped seed 0 first: the hybrid rows
+    named as the shipped policy's, the students alone as the recipe's."""
+    shipped = TABLE2 / (f"planned_fine_{SHIPPED[views]}.json" if hybrid else SHIPPED_ALONE[views])
+    found = [(seed, _out(views, seed, hybrid).with_suffix(".json")) for seed in SEEDS[views]]
+    alone = f"CLAMGen, {WORDS[views]}, the recipe of `{SHIPPED[views]}` as shipped until session 24"
+    name = table2_row_name(shipped) if hybrid else alone + " (ours), alone"
+    return {name: [(0, shipped)] + [(seed, path) for seed, path in found if path.is_file()]}
 
 
 def main() -> None:
@@ -111,24 +105,17 @@ def main() -> None:
                 done = ROOT / "runs" / "reseed" / f"d{views}-seed{seed}" / "summary.json"
                 if done.is_file():  # (written when the run has finished)
                     _evaluate(views, seed)
-    text = "\n".join(summarize(views) for views in (3, 2))
+    hybrids = {k: v for views in (3, 2) for k, v in seed_rows(views, True).items()}
+    alone = {k: v for views in (3, 2) for k, v in seed_rows(views, False).items()}
+    text = seed_summary(hybrids | alone, FAMILIES)
     print(text)
     (HERE / "camera_hybrid_seeds.txt").write_text(text + "\n")
-    rows = {}
-    for views in (3, 2):
-        shipped = TABLE2 / f"planned_fine_{SHIPPED[views]}.json"
-        runs = [(0, shipped)] + [
-            (seed, _out(views, seed, True).with_suffix(".json"))
-            for seed in SEEDS[views]
-            if _out(views, seed, True).with_suffix(".json").is_file()
-        ]
-        rows[table2_row_name(shipped)] = runs
     command = "python results/stage2/shield/camera_hybrid_seeds.py --summarize-only"
     note = (
         "seed 0 is the policy shipped until session 24; the others are its recipe trained "
         "again from the sweep's commands (runs/reseed/), not the sweep's own runs of that seed"
     )
-    write_seed_set(rows, HERE / "camera_hybrid_seeds.json", command, note)
+    write_seed_set(hybrids, HERE / "camera_hybrid_seeds.json", command, note)
 
 
 if __name__ == "__main__":

@@ -13,30 +13,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
+from clamgen.experiments.aggregate import seed_summary, table2_row_name, write_seed_set
 
 HERE = Path(__file__).resolve().parent
 TABLE2 = HERE.parents[1] / "table2"
 FAMILIES = ("obstacles", "blocked")
-VARIANTS = {
-    "depth shield": ("shielded_residual-3views.json", "fixed3_seed{}_shielded.json"),
-    "depth shield + planner when stuck": (
-        "planned_residual-3views.json",
-        "fixed3_seed{}_planned.json",
-    ),
-}
+VARIANTS = (
+    ("shielded_residual-3views.json", "fixed3_seed{}_shielded.json"),  # depth shield
+    ("planned_residual-3views.json", "fixed3_seed{}_planned.json"),  # + planner when stuck
+)
+"""The shipped policy's test row and its other seeds' (by seed), for each way of acting."""
 
 
 def main() -> None:
     rows = {}
-    for variant, (shipped, other) in VARIANTS.items():
+    for shipped, other in VARIANTS:
         files = [TABLE2 / shipped] + [HERE / other.format(s) for s in (1, 2)]
         rows[table2_row_name(files[0])] = list(zip((0, 1, 2), files, strict=True))
-        seeds = [row_scores(TABLE2 / shipped)] + [
-            row_scores(HERE / other.format(s)) for s in (1, 2)
-        ]
-        print(f"{variant} (3 seeds: 0 shipped, 1, 2)")
-        print("\n".join(seed_lines(seeds, FAMILIES)))
+    print(seed_summary(rows, FAMILIES))
     command = "python results/stage2/shield/three_seeds.py"
     note = (
         "seed 0 is the policy shipped until session 24, seeds 1 and 2 the lookahead-fixed "

@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from clamgen.experiments.aggregate import row_scores, seed_lines, table2_row_name, write_seed_set
+from clamgen.experiments.aggregate import seed_summary, table2_row_name, write_seed_set
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -31,7 +31,7 @@ RUNS = ROOT / "runs/sweeps/shipped-1view"
 RUN = "clamgen-2-rgbd-views-distilled-from-the-lookahead-teacher-with-3-cm-clearance-ours"
 SEEDS = (3, 4)
 FAMILIES = ("obstacles", "blocked")
-NAME = (
+NAME = (  # the seeds' row name in their files
     "CLAMGen, 2 RGBD views, shipped `residual-2views` + depth shield + planner on the depth map "
     "when stuck (ours)"
 )
@@ -55,16 +55,11 @@ def _evaluate(seed: int) -> None:
     subprocess.run(command, check=True)
 
 
-def summarize() -> str:
-    found = [(0, row_scores(TABLE2 / "planned_residual-2views.json"))]
-    found += [
-        (seed, row_scores(HERE / f"planned2_seed{seed}.json"))
-        for seed in SEEDS
-        if (HERE / f"planned2_seed{seed}.json").is_file()
-    ]
-    lines = [f"{NAME}; {len(found)} seeds {[seed for seed, _ in found]}"]
-    lines += seed_lines([scores for _, scores in found], FAMILIES)
-    return "\n".join(lines)
+def seed_rows() -> dict[str, list[tuple[int, Path]]]:
+    """The hybrid's row (the shipped policy's name) and its seeds' test row JSONs, seed 0 first."""
+    shipped = TABLE2 / "planned_residual-2views.json"
+    found = [(seed, HERE / f"planned2_seed{seed}.json") for seed in SEEDS]
+    return {table2_row_name(shipped): [(0, shipped)] + [(s, p) for s, p in found if p.is_file()]}
 
 
 def main() -> None:
@@ -74,21 +69,16 @@ def main() -> None:
     if not args.summarize_only:
         for seed in SEEDS:
             _evaluate(seed)
-    text = summarize()
+    rows = seed_rows()
+    text = seed_summary(rows, FAMILIES)
     print(text)
     (HERE / "two_view_seeds.txt").write_text(text + "\n")
-    shipped = TABLE2 / "planned_residual-2views.json"
-    runs = [(0, shipped)] + [
-        (seed, HERE / f"planned2_seed{seed}.json")
-        for seed in SEEDS
-        if (HERE / f"planned2_seed{seed}.json").is_file()
-    ]
     command = "python results/stage2/shield/two_view_seeds.py --summarize-only"
     note = (
         "seed 0 is the policy shipped until session 24; seeds 3 and 4 the shipped-1view "
         "sweep's 2-view runs"
     )
-    write_seed_set({table2_row_name(shipped): runs}, HERE / "two_view_seeds.json", command, note)
+    write_seed_set(rows, HERE / "two_view_seeds.json", command, note)
 
 
 if __name__ == "__main__":
