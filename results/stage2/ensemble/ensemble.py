@@ -48,9 +48,21 @@ MEMBERS = {
 }
 MEAN = "mean"
 SEEDS = HERE / "seeds"
-GUARDED = {"3v-s5+shield": ("3v-s5", False), "3v-s5+hybrid": ("3v-s5", True)}
+GUARDED = {
+    "3v-s5+hybrid": ("3v-s5", True),
+    **{f"3v-s{seed}+shield": (f"3v-s{seed}", False) for seed in (5, 7, 8)},
+}
 """Session 27: the shipped 3-view student through the hybrid's depth shield (`HYBRID[3]`),
-without or with its planner (which tasks the safety layer turns into successes)."""
+without or with its planner (which tasks the safety layer turns into successes); session 31:
+the other two seeds through the shield."""
+SHIELDED_BURST = {
+    **{f"3v-s{seed}+shield+burst": (f"3v-s{seed}", {}) for seed in (5, 7, 8)},
+    **{f"3v-s{seed}+shield+burst-half": (f"3v-s{seed}", {"scale": 0.5}) for seed in (5, 7, 8)},
+}
+"""Session 31: random escapes from stalls (`stall.StallBurst`, its defaults but for the options
+given) inside the hybrid's depth shield without its planner: the shield stops the escapes that
+would run into an obstacle (session 29's bursts on the bare students collided as often as they
+arrived)."""
 SWITCHED = {f"3v-s{seed}+escape": (f"3v-s{seed}", "3v-escape10") for seed in (5, 7, 8)}
 """Session 28: each 3-view seed acting, the escape student instead once the episode has
 stalled 10 steps (`clamgen.experiments.stall.StallSwitch`)."""
@@ -232,6 +244,12 @@ COMPARED = {
     **{f"3v-s{seed}-ft": (f"3v-s{seed}",) for seed in (5, 7, 8)},
     **{f"3v-s{seed}-ft-a10": (f"3v-s{seed}", f"3v-s{seed}-ft") for seed in (5, 7, 8)},
     **{f"3v-s{seed}-ft-enc": (f"3v-s{seed}", f"3v-s{seed}-ft-a10") for seed in (5, 7, 8)},
+    **{f"3v-s{seed}+shield": (f"3v-s{seed}",) for seed in (5, 7, 8)},
+    **{
+        f"3v-s{seed}+shield+burst{scale}": (f"3v-s{seed}+shield", f"3v-s{seed}")
+        for seed in (5, 7, 8)
+        for scale in ("", "-half")
+    },
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
 }
@@ -243,6 +261,7 @@ NAMES = (
     *MEANS,
     *STUDENTS,
     *GUARDED,
+    *SHIELDED_BURST,
     *SWITCHED,
     *CROPPED,
     *BY_CRITIC,
@@ -315,11 +334,16 @@ def done(out: Path = OUT) -> list[dict]:
 def load(name: str):
     from clamgen.experiments.policies import load_policy
 
-    if name in GUARDED:
+    if name in GUARDED or name in SHIELDED_BURST:
         from clamgen.experiments.depth_planner import HYBRID
+        from clamgen.experiments.stall import StallBurst
 
-        base, planner = GUARDED[name]
+        if name in GUARDED:
+            (base, planner), options = GUARDED[name], None
+        else:
+            (base, options), planner = SHIELDED_BURST[name], False
         policy, kwargs = load(base)
+        policy = policy if options is None else StallBurst(policy, **options)
         guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner)
         return guard.wrap(
             policy, kwargs["num_views"], kwargs["image_size"]
