@@ -55,14 +55,18 @@ GUARDED = {
 """Session 27: the shipped 3-view student through the hybrid's depth shield (`HYBRID[3]`),
 without or with its planner (which tasks the safety layer turns into successes); session 31:
 the other two seeds through the shield."""
+UNSEEN = {"shadow_m": 0.05, "shadow_behind_surfaces": True}
+"""The 1-view hybrid's unseen-space test: the hand keeps out of space no camera has seen free
+within 5 cm behind seen surfaces."""
 SHIELDED_BURST = {
-    **{f"3v-s{seed}+shield+burst": (f"3v-s{seed}", {}) for seed in (5, 7, 8)},
-    **{f"3v-s{seed}+shield+burst-half": (f"3v-s{seed}", {"scale": 0.5}) for seed in (5, 7, 8)},
+    **{f"3v-s{seed}+shield+burst": (f"3v-s{seed}", {}, {}) for seed in (5, 7, 8)},
+    **{f"3v-s{seed}+shield+burst-half": (f"3v-s{seed}", {"scale": 0.5}, {}) for seed in (5, 7, 8)},
+    **{f"3v-s{seed}+shield-unseen+burst": (f"3v-s{seed}", {}, UNSEEN) for seed in (5, 7, 8)},
 }
 """Session 31: random escapes from stalls (`stall.StallBurst`, its defaults but for the options
-given) inside the hybrid's depth shield without its planner: the shield stops the escapes that
-would run into an obstacle (session 29's bursts on the bare students collided as often as they
-arrived)."""
+given) inside the hybrid's depth shield without its planner (with the changes to the shield
+given): the shield stops the escapes that would run into an obstacle (session 29's bursts on
+the bare students collided as often as they arrived)."""
 SWITCHED = {f"3v-s{seed}+escape": (f"3v-s{seed}", "3v-escape10") for seed in (5, 7, 8)}
 """Session 28: each 3-view seed acting, the escape student instead once the episode has
 stalled 10 steps (`clamgen.experiments.stall.StallSwitch`)."""
@@ -246,9 +250,9 @@ COMPARED = {
     **{f"3v-s{seed}-ft-enc": (f"3v-s{seed}", f"3v-s{seed}-ft-a10") for seed in (5, 7, 8)},
     **{f"3v-s{seed}+shield": (f"3v-s{seed}",) for seed in (5, 7, 8)},
     **{
-        f"3v-s{seed}+shield+burst{scale}": (f"3v-s{seed}+shield", f"3v-s{seed}")
+        f"3v-s{seed}+shield{variant}": (f"3v-s{seed}+shield", f"3v-s{seed}")
         for seed in (5, 7, 8)
-        for scale in ("", "-half")
+        for variant in ("+burst", "+burst-half", "-unseen+burst")
     },
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
@@ -339,12 +343,12 @@ def load(name: str):
         from clamgen.experiments.stall import StallBurst
 
         if name in GUARDED:
-            (base, planner), options = GUARDED[name], None
+            (base, planner), options, changes = GUARDED[name], None, {}
         else:
-            (base, options), planner = SHIELDED_BURST[name], False
+            (base, options, changes), planner = SHIELDED_BURST[name], False
         policy, kwargs = load(base)
         policy = policy if options is None else StallBurst(policy, **options)
-        guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner)
+        guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner, **changes)
         return guard.wrap(
             policy, kwargs["num_views"], kwargs["image_size"]
         ), kwargs | guard.env_kwargs()
