@@ -415,6 +415,11 @@ class EvalConfig:
     """With --depth-planner: each plan may spend this many validity checks instead of 1 s, so
     that the episodes do not depend on the machine's speed or load (about 10,000 checks a
     second on one core here; `depth_planner.DepthShieldPlanner`). 0: the time budget."""
+    depth_escapes: bool = False
+    """With --depth-shield-m, instead of --depth-planner: once the episode has stalled 10
+    steps, 5 steps of one random joint command, then the policy again, every step through the
+    shield, which stops an escape that would touch an obstacle (`stall.StallBurst`, beyond the
+    paper): no step plans."""
 
 
 TABLE2_ROW_NAMES = {
@@ -526,6 +531,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_bridge_m != 0
         or config.depth_fine_size != 0
         or config.depth_plan_checks != 0
+        or config.depth_escapes
     )
 
 
@@ -571,7 +577,11 @@ def _depth_guard(config):
     bridge_m, checks = config.depth_bridge_m, config.depth_plan_checks
     if checks != 0 and not planner:
         raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
+    if config.depth_escapes and planner:
+        raise SystemExit("--depth-escapes and --depth-planner are two ways out of a stall: one")
     if margin_m is None:
+        if config.depth_escapes:
+            raise SystemExit("--depth-escapes needs --depth-shield-m (the shield they act in)")
         if shadow_m is not None or behind_surfaces:
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
         if bridge_m != 0:
@@ -590,7 +600,9 @@ def _depth_guard(config):
         raise SystemExit(f"--depth-fine-size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine}")
     if checks < 0:
         raise SystemExit(f"--depth-plan-checks must be >= 0, got {checks}")
-    return DepthGuard(margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine, checks)
+    return DepthGuard(
+        margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine, checks, config.depth_escapes
+    )
 
 
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):

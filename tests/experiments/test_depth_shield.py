@@ -299,11 +299,46 @@ def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
     assert arm_only.hidden_points(far_side).mean() < 0.1
 
 
+def test_random_escapes_inside_the_shield_move_a_stuck_policy_without_contact(blocked_env):
+    from clamgen.experiments.stall import StallBurst
+
+    guard = DepthGuard(escapes=True)
+    shielded = guard.wrap(Still(), VIEWS, SIZE)
+    assert isinstance(shielded, DepthShield) and not isinstance(shielded, DepthShieldPlanner)
+    assert isinstance(shielded.policy, StallBurst)
+    runs = []
+    for _ in range(2):
+        records = evaluate(blocked_env, guard.wrap(Still(), VIEWS, SIZE), TEST_SEEDS.seeds(3))
+        # A policy that never moves stalls at once: the escapes move the arm, never into contact.
+        assert all(r.tip_path_m > 0.05 for r in records)
+        assert not any(r.collided for r in records)
+        runs.append([(r.success, r.steps, r.tip_path_m) for r in records])
+    assert runs[0] == runs[1]  # seeded per episode
+    assert guard.describe().endswith(" + random escapes when stuck")
+    with pytest.raises(ValueError, match="two ways out of a stall"):
+        DepthGuard(planner=True, escapes=True).wrap(Still(), VIEWS, SIZE)
+
+
+def test_random_escapes_need_a_shield_and_no_planner():
+    for args, message in (
+        (["--depth-escapes"], "--depth-escapes needs --depth-shield-m"),
+        (
+            ["--depth-shield-m", "0.01", "--depth-planner", "--depth-escapes"],
+            "--depth-escapes and --depth-planner are two ways out of a stall",
+        ),
+    ):
+        config = tyro.cli(EvalConfig, args=["--table", "2", *args])
+        assert _wants_depth_shield(config)
+        with pytest.raises(SystemExit, match=message):
+            _depth_guard(config)
+
+
 @pytest.mark.parametrize("views", sorted(HYBRID))
 def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     guard = HYBRID[views]
     finer = DepthGuard(0.02, True, 0.05, False, 0.03, 128, 5000)
-    for each in (guard, finer):
+    escaping = DepthGuard(0.01, fine_depth_size=128, escapes=True)
+    for each in (guard, finer, escaping):
         config = tyro.cli(EvalConfig, args=["--table", "2", *each.flags()])
         assert _depth_guard(config) == each
     config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid"])

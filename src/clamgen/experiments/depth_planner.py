@@ -33,7 +33,7 @@ from clamgen.envs.reach_env import (
     SUCCESS_DISTANCE_M,
 )
 from clamgen.experiments.depth_shield import MARGIN_M, DepthShield
-from clamgen.experiments.stall import WINDOW_STEPS, ProgressWindow
+from clamgen.experiments.stall import WINDOW_STEPS, ProgressWindow, StallBurst
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import solve_tip_position, wrap_joints
 
@@ -179,8 +179,10 @@ class DepthGuard:
     `shadow_behind_surfaces` behind any surface), with `bridge_m` joining neighbouring
     pixels' surface, with `fine_depth_size` reading the views' depth from a finer depth
     camera at the same poses (the env's `fine_depth`, see `env_kwargs`), with `plan_checks`
-    > 0 giving the planner a budget in validity checks instead of time (`DepthShieldPlanner`).
-    The fields are `clamgen eval|render`'s `--depth-*` options."""
+    > 0 giving the planner a budget in validity checks instead of time (`DepthShieldPlanner`),
+    with `escapes` leaving stalls by random escapes inside the shield instead of by a plan
+    (`stall.StallBurst` around the policy: every step a policy step or a random command, plus
+    the shield's checks). The fields are `clamgen eval|render`'s `--depth-*` options."""
 
     margin_m: float = MARGIN_M
     planner: bool = False
@@ -189,6 +191,7 @@ class DepthGuard:
     bridge_m: float = 0.0
     fine_depth_size: int = 0
     plan_checks: int = 0
+    escapes: bool = False
 
     def env_kwargs(self) -> dict[str, int]:
         """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
@@ -196,6 +199,9 @@ class DepthGuard:
 
     def wrap(self, policy, num_views: int, image_size: int) -> DepthShield:
         """`policy` acting through this guard (a ValueError for bad settings)."""
+        if self.escapes and self.planner:
+            raise ValueError("random escapes and the planner are two ways out of a stall: one")
+        policy = StallBurst(policy) if self.escapes else policy
         wrapper = DepthShieldPlanner if self.planner else DepthShield
         planning = {"plan_checks": self.plan_checks} if self.planner else {}
         return wrapper(
@@ -220,6 +226,7 @@ class DepthGuard:
         flags += ["--depth-bridge-m", str(self.bridge_m)] if self.bridge_m else []
         flags += ["--depth-fine-size", str(self.fine_depth_size)] if self.fine_depth_size else []
         flags += ["--depth-plan-checks", str(self.plan_checks)] if self.plan_checks else []
+        flags += ["--depth-escapes"] if self.escapes else []
         return tuple(flags)
 
     def describe(self) -> str:
@@ -231,7 +238,8 @@ class DepthGuard:
         text += f", pixels bridged up to {self.bridge_m} m" if self.bridge_m else ""
         text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
         checks = f" ({self.plan_checks} checks a plan)" if self.plan_checks else ""
-        return text + ")" + (f" + planner when stuck{checks}" if self.planner else "")
+        text += ")" + (f" + planner when stuck{checks}" if self.planner else "")
+        return text + (" + random escapes when stuck" if self.escapes else "")
 
 
 HYBRID = {
