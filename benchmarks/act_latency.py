@@ -10,7 +10,8 @@ step on one core.
 The shipped policies acting through the depth shield (`clamgen eval --depth-shield-m 0.01`;
 for one view also with `--depth-shadow-m 0.05 --depth-shadow-behind-surfaces`; and as the
 hybrids without their planners, the shield reading 128-pixel depth cameras,
-`--depth-fine-size 128`, for one view with the unseen-space test) are timed
+`--depth-fine-size 128`, for one view with the unseen-space test; and with random escapes
+from stalls instead of the planner, `depth_planner.ESCAPES`) are timed
 along whole episodes of their own on blocked and standard tasks (8 of each), recorded first,
 so that the shield sees a growing obstacle map and steps that need it (and a policy pressed
 against an obstacle until the time limit), as in an evaluation (its cost includes the
@@ -41,7 +42,7 @@ from common import write_csv
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import TRAINING_SEEDS
-from clamgen.experiments.depth_planner import HYBRID, DepthGuard
+from clamgen.experiments.depth_planner import ESCAPES, HYBRID, DepthGuard
 from clamgen.experiments.policies import load_policy
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -68,6 +69,10 @@ SHIELDED = (
     ("residual-3views", FINE[3]),
     ("residual-2views", FINE[2]),
     ("residual-1view", FINE[1]),
+    *(
+        (name, ESCAPES[views])
+        for views, name in ((3, "residual-3views"), (2, "residual-2views"), (1, "residual-1view"))
+    ),
 )
 NUM_EPISODES = 8
 BLOCK = 50  # calls of one policy before switching to the next
@@ -143,6 +148,7 @@ def main() -> None:
         label = f"{name} + depth shield ({guard.margin_m} m"
         label += f", shadow {guard.shadow_m} m" if guard.shadow_m is not None else ""
         label += f", depth at {guard.fine_depth_size} px" if guard.fine_depth_size else ""
+        label += ", random escapes" if guard.escapes else ""
         loaded[label + ")"] = (shielded, replay)
     times: dict[str, list[float]] = {label: [] for label in loaded}
     # A shielded policy replays all its recorded steps the same number of times.

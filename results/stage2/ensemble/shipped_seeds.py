@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from clamgen.experiments.aggregate import seed_summary, write_seed_set
-from clamgen.experiments.depth_planner import HYBRID
+from clamgen.experiments.depth_planner import ESCAPES, HYBRID
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -57,23 +57,27 @@ WORDS = {3: "3 RGBD views", 2: "2 RGBD views", 1: "1 RGBD view"}
 SHIPPED = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 POOLS = {3: "d3-pool4", 2: "d2-pool5", 1: "d1-pool5"}
 """The pooled data's run-name stem by number of views (`seed_lane.sh`)."""
-KINDS = ("alone", "shielded", "hybrid")
+KINDS = ("alone", "shielded", "hybrid", "escapes")
 """How a seed's student acts: alone; through the hybrid's depth shield (1 cm, 128-pixel depth
-cameras, for one view the unseen-space test) without its planner; as the hybrid."""
+cameras, for one view the unseen-space test) without its planner; as the hybrid; through the
+shield with the unseen-space test and random escapes from stalls instead of the planner
+(`depth_planner.ESCAPES`, session 31)."""
 SHIPPED_ROWS = {
     (3, "alone"): HERE / "3v-dagger+2_test.json",
     (2, "alone"): HERE / "2v-dagger+2_test.json",
     (1, "alone"): HERE / "1v-dagger+2_test.json",
     **{(v, "shielded"): TABLE2 / f"shielded_fine_{SHIPPED[v]}.json" for v in SHIPPED},
     **{(v, "hybrid"): TABLE2 / f"hybrid_{SHIPPED[v]}.json" for v in SHIPPED},
+    **{(v, "escapes"): TABLE2 / f"escapes_{SHIPPED[v]}.json" for v in SHIPPED},
 }
 """The shipped students' own test rows (seed 5), alone, shielded and in their hybrids."""
-STEMS = {"alone": "student", "shielded": "shielded", "hybrid": "hybrid"}
+STEMS = {"alone": "student", "shielded": "shielded", "hybrid": "hybrid", "escapes": "escapes"}
 """A seed's row file stem by kind (`seeds/<stem><V>_seed<S>.json`)."""
 NAME_ENDINGS = {
     "alone": ", alone",
     "shielded": " + the hybrid's depth shield, no planner",
     "hybrid": " + the hybrid's depth shield and planner",
+    "escapes": " + the depth shield with random escapes when stuck, no planner",
 }
 """How a seed's row name ends, by kind."""
 
@@ -87,6 +91,7 @@ KIND_WORDS = {
     "alone": "the policy alone",
     "shielded": "+ depth shield (128-pixel depth cameras)",
     "hybrid": "+ depth shield and planner when stuck (the hybrid)",
+    "escapes": "+ depth shield and random escapes when stuck (no planner)",
 }
 
 
@@ -104,6 +109,8 @@ def _flags(views: int, kind: str) -> list[str]:
         return ["--depth-hybrid"]
     if kind == "alone":
         return []
+    if kind == "escapes":
+        return list(ESCAPES[views].flags())
     return list(dataclasses.replace(HYBRID[views], planner=False).flags())
 
 
@@ -198,7 +205,7 @@ def write_seeds() -> Path:
     compare = [
         (_name(views, kind), _name(views, "alone"))
         for views in sorted(SEEDS, reverse=True)
-        for kind in ("hybrid", "shielded")
+        for kind in ("hybrid", "shielded", "escapes")
     ]
     return write_seed_set(rows, OUT / "summary.json", command, note, compare)
 

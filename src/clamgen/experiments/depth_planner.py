@@ -254,3 +254,11 @@ the policy still acts on its 64-pixel images; chosen on 1-view validation tasks 
 and on 3- and 2-view ones in session 18). From one view the hand also keeps out of unseen
 space within 5 cm behind seen surfaces (chosen on 1-view validation tasks; with 3 and 2 views
 it cost success). `results/stage2/shield/README.md`."""
+ESCAPES = {
+    views: replace(guard, planner=False, shadow_m=0.05, shadow_behind_surfaces=True, escapes=True)
+    for views, guard in HYBRID.items()
+}
+"""The hybrids' shield without the planner, leaving stalls by random escapes instead (no step
+plans), with the unseen-space test for every number of views: chosen for 3 views on validation
+tasks in session 31 (`results/stage2/ensemble/README.md`, "Random escapes inside the depth
+shield"), over half-scale escapes and the shield without that test."""
