@@ -58,10 +58,21 @@ the other two seeds through the shield."""
 UNSEEN = {"shadow_m": 0.05, "shadow_behind_surfaces": True}
 """The 1-view hybrid's unseen-space test: the hand keeps out of space no camera has seen free
 within 5 cm behind seen surfaces."""
+ESCAPE_VARIANTS = {
+    "long": {"burst_steps": 10},
+    "soon": {"after_steps": 5},
+    "long-soon": {"burst_steps": 10, "after_steps": 5},
+}
+"""Session 31, second round: escapes twice as long, after half as many stalled steps, both."""
 SHIELDED_BURST = {
     **{f"3v-s{seed}+shield+burst": (f"3v-s{seed}", {}, {}) for seed in (5, 7, 8)},
     **{f"3v-s{seed}+shield+burst-half": (f"3v-s{seed}", {"scale": 0.5}, {}) for seed in (5, 7, 8)},
     **{f"3v-s{seed}+shield-unseen+burst": (f"3v-s{seed}", {}, UNSEEN) for seed in (5, 7, 8)},
+    **{
+        f"3v-s{seed}+shield-unseen+burst-{name}": (f"3v-s{seed}", options, UNSEEN)
+        for seed in (5, 7, 8)
+        for name, options in ESCAPE_VARIANTS.items()
+    },
 }
 """Session 31: random escapes from stalls (`stall.StallBurst`, its defaults but for the options
 given) inside the hybrid's depth shield without its planner (with the changes to the shield
@@ -252,7 +263,12 @@ COMPARED = {
     **{
         f"3v-s{seed}+shield{variant}": (f"3v-s{seed}+shield", f"3v-s{seed}")
         for seed in (5, 7, 8)
-        for variant in ("+burst", "+burst-half", "-unseen+burst")
+        for variant in (
+            "+burst",
+            "+burst-half",
+            "-unseen+burst",
+            *(f"-unseen+burst-{name}" for name in ESCAPE_VARIANTS),
+        )
     },
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
