@@ -416,10 +416,11 @@ class EvalConfig:
     that the episodes do not depend on the machine's speed or load (about 10,000 checks a
     second on one core here; `depth_planner.DepthShieldPlanner`). 0: the time budget."""
     depth_escapes: bool = False
-    """With --depth-shield-m, instead of --depth-planner: once the episode has stalled 10
-    steps, 5 steps of one random joint command, then the policy again, every step through the
-    shield, which stops an escape that would touch an obstacle (`stall.StallBurst`, beyond the
-    paper): no step plans."""
+    """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
+    joint command, then the policy again, every step through the shield, which stops an escape
+    that would touch an obstacle (`stall.StallBurst`, beyond the paper): no step plans. Alone,
+    the setting of Table 2's escape rows (`depth_planner.ESCAPES`: the hybrids' shield with the
+    unseen-space test); with --depth-shield-m, added to the shield those options give."""
 
 
 TABLE2_ROW_NAMES = {
@@ -546,18 +547,22 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     and, with any other depth option, a margin is given."""
     from importlib.util import find_spec
 
-    from clamgen.experiments.depth_planner import HYBRID
+    from clamgen.experiments.depth_planner import ESCAPES, HYBRID
 
     if config.depth_hybrid and _depth_options_given(config):
         raise SystemExit("--depth-hybrid sets the depth options itself: drop the others")
-    guard = None if config.depth_hybrid else _depth_guard(config)
+    escapes_alone = config.depth_escapes and not _depth_options_given(
+        dataclasses.replace(config, depth_escapes=False)
+    )
+    preset = HYBRID if config.depth_hybrid else ESCAPES if escapes_alone else None
+    guard = None if preset else _depth_guard(config)
     views = env_kwargs.get("num_views", 0)
     if not views or env_kwargs.get("obs_mode") != "both":
         raise SystemExit(
             "the depth shield needs a vision residual (a policy that observes its joints and "
             "RGBD views)"
         )
-    guard = guard or HYBRID[min(views, max(HYBRID))]
+    guard = guard or preset[min(views, max(preset))]
     if guard.planner and find_spec("ompl") is None:
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
     try:
@@ -580,8 +585,6 @@ def _depth_guard(config):
     if config.depth_escapes and planner:
         raise SystemExit("--depth-escapes and --depth-planner are two ways out of a stall: one")
     if margin_m is None:
-        if config.depth_escapes:
-            raise SystemExit("--depth-escapes needs --depth-shield-m (the shield they act in)")
         if shadow_m is not None or behind_surfaces:
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
         if bridge_m != 0:

@@ -14,10 +14,11 @@ from clamgen.baselines import IKInterpolationPolicy
 from clamgen.cli import EvalConfig, _depth_guard, _wants_depth_shield, _with_depth_shield
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import TEST_SEEDS
-from clamgen.experiments.depth_planner import HYBRID, DepthGuard, DepthShieldPlanner
+from clamgen.experiments.depth_planner import ESCAPES, HYBRID, DepthGuard, DepthShieldPlanner
 from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield, _in_boxes
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.tables import _PlanTimeRecorder
+from clamgen.experiments.video import RenderConfig
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles
 
@@ -319,18 +320,28 @@ def test_random_escapes_inside_the_shield_move_a_stuck_policy_without_contact(bl
         DepthGuard(planner=True, escapes=True).wrap(Still(), VIEWS, SIZE)
 
 
-def test_random_escapes_need_a_shield_and_no_planner():
+@pytest.mark.parametrize("views", sorted(ESCAPES))
+def test_random_escapes_alone_are_the_escape_rows_setting_and_refuse_the_planner(views):
+    config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-escapes"])
+    assert _wants_depth_shield(config)
+    env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
+    shielded, source, kwargs = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+    guard = ESCAPES[views]
+    assert source == guard.describe() and kwargs == env_kwargs | guard.env_kwargs()
+    assert guard.escapes and not guard.planner and guard.shadow_behind_surfaces
+    assert not isinstance(shielded, DepthShieldPlanner)
+    config = tyro.cli(EvalConfig, args=["--table", "2", *guard.flags()])
+    assert _depth_guard(config) == guard
+    render = tyro.cli(RenderConfig, args=["--policy", "residual-3views", "--depth-escapes"])
+    assert _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, render)[1] == source
     for args, message in (
-        (["--depth-escapes"], "--depth-escapes needs --depth-shield-m"),
-        (
-            ["--depth-shield-m", "0.01", "--depth-planner", "--depth-escapes"],
-            "--depth-escapes and --depth-planner are two ways out of a stall",
-        ),
+        (["--depth-shield-m", "0.01", "--depth-planner", "--depth-escapes"], "two ways out"),
+        (["--depth-hybrid", "--depth-escapes"], "--depth-hybrid sets the depth options"),
+        (["--depth-escapes", "--depth-fine-size", "128"], "needs --depth-shield-m"),
     ):
         config = tyro.cli(EvalConfig, args=["--table", "2", *args])
-        assert _wants_depth_shield(config)
         with pytest.raises(SystemExit, match=message):
-            _depth_guard(config)
+            _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
 
 
 @pytest.mark.parametrize("views", sorted(HYBRID))

@@ -77,6 +77,9 @@ class RenderConfig:
     depth_plan_checks: int = 0
     """With --depth-planner: a budget of this many validity checks a plan instead of 1 s, as
     `clamgen eval --depth-plan-checks`. 0: the time budget."""
+    depth_escapes: bool = False
+    """Instead of --depth-planner: random escapes from stalls inside the shield, as `clamgen
+    eval --depth-escapes` (alone: the escape rows' setting)."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
