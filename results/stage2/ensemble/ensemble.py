@@ -73,6 +73,11 @@ SHIELDED_BURST = {
         for seed in (5, 7, 8)
         for name, options in ESCAPE_VARIANTS.items()
     },
+    **{
+        f"3v-s{seed}+shield-unseen+burst-{mode}": (f"3v-s{seed}", {"choose": mode}, UNSEEN)
+        for seed in (5, 7, 8)
+        for mode in ("free", "open")
+    },
 }
 """Session 31: random escapes from stalls (`stall.StallBurst`, its defaults but for the options
 given) inside the hybrid's depth shield without its planner (with the changes to the shield
@@ -267,7 +272,7 @@ COMPARED = {
             "+burst",
             "+burst-half",
             "-unseen+burst",
-            *(f"-unseen+burst-{name}" for name in ESCAPE_VARIANTS),
+            *(f"-unseen+burst-{name}" for name in (*ESCAPE_VARIANTS, "free", "open")),
         )
     },
     "3v-near3-s7": ("3v-reg-s7",),
@@ -331,6 +336,42 @@ class CropMeanPolicy:
             return np.tanh(self.agent.mean_action(batch).mean(0))
 
 
+class EscapeChooser:
+    """Session 31, third round: a burst's command among `CANDIDATES` random ones (each joint
+    uniform in [-1, 1]) by the shield's map (`DepthClearance`): each candidate's path is its
+    command repeated `BURST_STEPS` steps from the present joints (joint limits applied), and
+    its score the least clearance along it to the obstacle surface seen so far and the table
+    (capped at `OPEN_CAP_M`). `mode` "free": the first candidate whose path keeps the shield's
+    margin (else the best scored), so that an escape is not one the shield would stop; "open":
+    the best scored, the way into the most open space."""
+
+    CANDIDATES = 16
+    OPEN_CAP_M = 0.15
+
+    def __init__(self, checker, mode: str) -> None:
+        self.checker, self.mode = checker, mode
+
+    def __call__(self, rng: np.random.Generator, obs: dict) -> np.ndarray:
+        from clamgen.envs.reach_env import step_target
+        from clamgen.experiments.stall import BURST_STEPS
+
+        commands = rng.uniform(-1.0, 1.0, (self.CANDIDATES, 6))
+        joints = np.asarray(obs["observation"], np.float64)[:6]
+        paths = np.empty((self.CANDIDATES, BURST_STEPS, 6))
+        for k, command in enumerate(commands):
+            at = joints
+            for step in range(BURST_STEPS):
+                at = paths[k, step] = step_target(at, command)
+        arm, points = self.checker.arm, self.checker.points
+        cap = self.OPEN_CAP_M
+        score = arm.clearances(paths.reshape(-1, 6), points, cap).reshape(self.CANDIDATES, -1)
+        score = score.min(axis=1)
+        if self.mode == "free":
+            free = np.flatnonzero(score >= self.checker.margin_m)
+            return commands[free[0] if len(free) else int(np.argmax(score))]
+        return commands[int(np.argmax(score))]
+
+
 class SaturatedPolicy:
     """A policy's command scaled (direction kept) until its largest joint command is 1."""
 
@@ -363,11 +404,15 @@ def load(name: str):
         else:
             (base, options, changes), planner = SHIELDED_BURST[name], False
         policy, kwargs = load(base)
-        policy = policy if options is None else StallBurst(policy, **options)
+        mode = (options or {}).get("choose")
+        if options is not None:
+            options = {k: v for k, v in options.items() if k != "choose"}
+            policy = StallBurst(policy, **options)
         guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner, **changes)
-        return guard.wrap(
-            policy, kwargs["num_views"], kwargs["image_size"]
-        ), kwargs | guard.env_kwargs()
+        shielded = guard.wrap(policy, kwargs["num_views"], kwargs["image_size"])
+        if mode is not None:
+            policy.choose = EscapeChooser(shielded.checker, mode)
+        return shielded, kwargs | guard.env_kwargs()
     if name in HEADED:
         import importlib
         import sys

@@ -695,8 +695,8 @@ class DepthShield:
         self.policy.reset(env)
 
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        action = np.asarray(self.policy.act(obs), np.float64)
-        return self.shield(self.observe(obs), action)
+        joints = self.observe(obs)  # (first: a policy inside may read the map, e.g. escapes)
+        return self.shield(joints, np.asarray(self.policy.act(obs), np.float64))
 
     def observe(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """Add what `obs` shows to the obstacle map; the arm's joints."""

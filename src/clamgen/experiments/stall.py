@@ -184,8 +184,9 @@ class StallBurst:
     reaches `after_steps`, `burst_steps` steps of one random command (each joint uniform in
     [-`scale`, `scale`]), then `policy` again for at least `after_steps` steps before the next
     burst (if the count has not restarted by then). The random stream restarts from `seed` at
-    each reset, so an episode acts the same every time. Counts `num_burst_steps` of
-    `num_steps`."""
+    each reset, so an episode acts the same every time. `choose(rng, obs)`, if given, draws a
+    burst's command instead (from the same stream; e.g. among random candidates by what a
+    depth map shows). Counts `num_burst_steps` of `num_steps`."""
 
     def __init__(
         self,
@@ -194,6 +195,7 @@ class StallBurst:
         burst_steps: int = BURST_STEPS,
         scale: float = BURST_SCALE,
         seed: int = 0,
+        choose=None,
     ) -> None:
         if after_steps < 1 or burst_steps < 1:
             raise ValueError(
@@ -206,6 +208,7 @@ class StallBurst:
         self.burst_steps = burst_steps
         self.scale = scale
         self.seed = seed
+        self.choose = choose
         self.counter = StallCounter()
         self.num_steps = 0
         self.num_burst_steps = 0
@@ -230,7 +233,10 @@ class StallBurst:
         self.num_steps += 1
         count = self.counter.update(obs)
         if not self._left and count >= self.after_steps and self._since >= self.after_steps:
-            self._command = self._rng.uniform(-self.scale, self.scale, ur5.NUM_JOINTS)
+            if self.choose is None:
+                self._command = self._rng.uniform(-self.scale, self.scale, ur5.NUM_JOINTS)
+            else:
+                self._command = np.asarray(self.choose(self._rng, obs), np.float64)
             self._left = self.burst_steps
         if self._left:
             self._left -= 1
