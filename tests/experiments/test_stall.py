@@ -176,3 +176,20 @@ def test_progress_window_waits_its_steps_and_not_at_the_target():
     assert not any(window.stalled(0.01) for _ in range(10))
     with pytest.raises(ValueError, match="stuck_steps must be >= 1"):
         ProgressWindow(0)
+
+
+def test_stall_burst_takes_its_escape_from_a_chooser_on_its_own_stream():
+    drawn = []
+
+    def choose(rng, obs):
+        drawn.append(rng.uniform())
+        return np.full(6, 0.5)
+
+    burst = StallBurst(_Constant(0.1), after_steps=2, burst_steps=3, choose=choose)
+    burst.reset()
+    acted = [float(burst.act(_obs(0.3))[0]) for _ in range(6)]
+    # Two stalled steps, then three of the chooser's command, then the policy again.
+    assert acted == [0.1, 0.1, 0.5, 0.5, 0.5, 0.1]
+    burst.reset()
+    [burst.act(_obs(0.3)) for _ in range(3)]
+    assert len(drawn) == 2 and drawn[0] == drawn[1]  # the stream restarts at each reset
