@@ -282,10 +282,6 @@ def find_summaries(root: Path, kind: str = SWEEP_KIND) -> list[Path]:
     return found
 
 
-def find_sweep_summaries(root: Path) -> list[Path]:
-    return find_summaries(root, SWEEP_KIND)
-
-
 def results_from_seed_sets(paths: Iterable[Path]) -> tuple[list[RunResult], set[tuple[Path, str]]]:
     """The runs of seed sets, and the (result file, row name) pairs they read, which are then no
     single-run rows of their own. A row and seed that two sets share counts once."""
@@ -325,7 +321,7 @@ def collect_results(
 ) -> tuple[list[RunResult], dict[str, str]]:
     """Every run result; rows covered by a sweep or a seed set take their runs from those only,
     and a table file's row that a seed set reads is no row of its own."""
-    paths = list(dict.fromkeys([*find_sweep_summaries(root), *map(Path, sweeps)]))
+    paths = list(dict.fromkeys([*find_summaries(root, SWEEP_KIND), *map(Path, sweeps)]))
     swept, comparisons = results_from_sweeps(paths)
     seeded, used = results_from_seed_sets(find_summaries(root, agg.SEED_SET_KIND))
     covered = {r.row for r in swept} | {r.row for r in seeded}
