@@ -33,7 +33,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -919,14 +919,7 @@ class ResidualAgent:
         from them, and a frozen copy of its actor becomes the anchor (`anchor_weight` > 0). The
         temperature, optimisers and update count stay fresh. A RuntimeError or KeyError names
         what does not match this agent's config."""
-        state = _translate_legacy_keys(state)
-        missing = sorted(set(self.nets.policy) - set(state))
-        if missing:
-            raise KeyError(f"the policy has no {missing}")
-        parts = self.nets.parts()
-        for key in self.nets.policy_keys():
-            if key in state:
-                parts[key].load_state_dict(state[key])
+        self._load_parts(state, self.nets.policy, self.nets.policy_keys())
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.key_encoder.load_state_dict(self.critic.encoder.state_dict())
         self.base_critic_target.load_state_dict(self.base_critic.state_dict())
@@ -935,14 +928,8 @@ class ResidualAgent:
     def load_state_dict(self, state: Mapping[str, Any], policy_only: bool = False) -> None:
         """Load `state_dict()`'s output; `policy_only`: a policy file's subset, the training-only
         parts (targets, auxiliary heads, optimisers) keeping their fresh values."""
-        state = _translate_legacy_keys(state)
-        required = set(self.nets.policy) if policy_only else set(self.nets.parts())
-        missing = sorted(required - set(state))
-        if missing:
-            raise KeyError(f"state has no {missing}")
-        for key, module in self.nets.parts().items():
-            if key in state:
-                module.load_state_dict(state[key])
+        parts = self.nets.parts()
+        state = self._load_parts(state, self.nets.policy if policy_only else parts, parts)
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
         for name in ("critic_optim", "actor_optim", "alpha_optim"):
@@ -951,6 +938,21 @@ class ResidualAgent:
         self.num_updates = int(state.get("num_updates", 0))
         if "torch_generator" in state:
             self._generator.set_state(state["torch_generator"])
+
+    def _load_parts(
+        self, state: Mapping[str, Any], required: Iterable[str], keys: Iterable[str]
+    ) -> Mapping[str, Any]:
+        """Load the networks named `keys` that `state` holds (legacy keys translated); a
+        KeyError names the `required` ones it lacks. Returns the translated state."""
+        state = _translate_legacy_keys(state)
+        missing = sorted(set(required) - set(state))
+        if missing:
+            raise KeyError(f"state has no {missing}")
+        parts = self.nets.parts()
+        for key in keys:
+            if key in state:
+                parts[key].load_state_dict(state[key])
+        return state
 
 
 def _adam(params: list, lr: float, device: torch.device) -> torch.optim.Adam:
