@@ -317,13 +317,16 @@ def seed_set_pairs(paths: Iterable[Path]) -> list[tuple[str, str]]:
 
 
 def collect_results(
-    root: Path, sweeps: Iterable[Path] = ()
+    root: Path, sweeps: Iterable[Path] = (), seed_sets: list[Path] | None = None
 ) -> tuple[list[RunResult], dict[str, str]]:
     """Every run result; rows covered by a sweep or a seed set take their runs from those only,
-    and a table file's row that a seed set reads is no row of its own."""
+    and a table file's row that a seed set reads is no row of its own. `seed_sets`: the seed
+    sets under `root` when already found (`find_summaries`)."""
     paths = list(dict.fromkeys([*find_summaries(root, SWEEP_KIND), *map(Path, sweeps)]))
     swept, comparisons = results_from_sweeps(paths)
-    seeded, used = results_from_seed_sets(find_summaries(root, agg.SEED_SET_KIND))
+    if seed_sets is None:
+        seed_sets = find_summaries(root, agg.SEED_SET_KIND)
+    seeded, used = results_from_seed_sets(seed_sets)
     covered = {r.row for r in swept} | {r.row for r in seeded}
     seeded = [r for r in seeded if r.row not in {s.row for s in swept}]
     single = [
@@ -912,8 +915,9 @@ def build_report(config: ReportConfig) -> Path:
             table2_markdown(table2_rows),
             "",
         ]
-    results, comparisons = collect_results(root, config.sweep)
-    set_sources = set(map(str, find_summaries(root, agg.SEED_SET_KIND)))
+    seed_set_paths = find_summaries(root, agg.SEED_SET_KIND)
+    results, comparisons = collect_results(root, config.sweep, seed_set_paths)
+    set_sources = set(map(str, seed_set_paths))
     families = {}
     for family in FAMILIES:
         aggregate = aggregate_family(results, family, config.reps, config.seed)
@@ -956,7 +960,7 @@ def build_report(config: ReportConfig) -> Path:
         improvement = improvement_markdown(families, comparisons, config.reps, config.seed)
         if improvement:
             lines += ["### Does each component help?", "", improvement, ""]
-        pairs = seed_set_pairs(find_summaries(root, agg.SEED_SET_KIND))
+        pairs = seed_set_pairs(seed_set_paths)
         wrappers = comparison_markdown(families, pairs, WRAPPERS, config.reps, config.seed)
         if wrappers:
             lines += ["### What the test-time wrappers add (beyond the paper)", "", wrappers, ""]
