@@ -65,24 +65,28 @@ ESCAPE_VARIANTS = {
 }
 """Session 31, second round: escapes twice as long, after half as many stalled steps, both."""
 SHIELDED_BURST = {
-    **{f"3v-s{seed}+shield+burst": (f"3v-s{seed}", {}, {}) for seed in (5, 7, 8)},
-    **{f"3v-s{seed}+shield+burst-half": (f"3v-s{seed}", {"scale": 0.5}, {}) for seed in (5, 7, 8)},
-    **{f"3v-s{seed}+shield-unseen+burst": (f"3v-s{seed}", {}, UNSEEN) for seed in (5, 7, 8)},
+    **{f"3v-s{seed}+shield+burst": (f"3v-s{seed}", {}, {}, None) for seed in (5, 7, 8)},
     **{
-        f"3v-s{seed}+shield-unseen+burst-{name}": (f"3v-s{seed}", options, UNSEEN)
+        f"3v-s{seed}+shield+burst-half": (f"3v-s{seed}", {"scale": 0.5}, {}, None)
+        for seed in (5, 7, 8)
+    },
+    **{f"3v-s{seed}+shield-unseen+burst": (f"3v-s{seed}", {}, UNSEEN, None) for seed in (5, 7, 8)},
+    **{
+        f"3v-s{seed}+shield-unseen+burst-{name}": (f"3v-s{seed}", options, UNSEEN, None)
         for seed in (5, 7, 8)
         for name, options in ESCAPE_VARIANTS.items()
     },
     **{
-        f"3v-s{seed}+shield-unseen+burst-{mode}": (f"3v-s{seed}", {"choose": mode}, UNSEEN)
+        f"3v-s{seed}+shield-unseen+burst-{mode}": (f"3v-s{seed}", {}, UNSEEN, mode)
         for seed in (5, 7, 8)
         for mode in ("free", "open")
     },
 }
-"""Session 31: random escapes from stalls (`stall.StallBurst`, its defaults but for the options
-given) inside the hybrid's depth shield without its planner (with the changes to the shield
-given): the shield stops the escapes that would run into an obstacle (session 29's bursts on
-the bare students collided as often as they arrived)."""
+"""Session 31: (student, `StallBurst` options, changes to the shield, `EscapeChooser` mode or
+None): random escapes from stalls (`stall.StallBurst`, its defaults but for the options given)
+inside the hybrid's depth shield without its planner (with the changes given): the shield stops
+the escapes that would run into an obstacle (session 29's bursts on the bare students collided
+as often as they arrived)."""
 SWITCHED = {f"3v-s{seed}+escape": (f"3v-s{seed}", "3v-escape10") for seed in (5, 7, 8)}
 """Session 28: each 3-view seed acting, the escape student instead once the episode has
 stalled 10 steps (`clamgen.experiments.stall.StallSwitch`)."""
@@ -400,13 +404,11 @@ def load(name: str):
         from clamgen.experiments.stall import StallBurst
 
         if name in GUARDED:
-            (base, planner), options, changes = GUARDED[name], None, {}
+            (base, planner), options, changes, mode = GUARDED[name], None, {}, None
         else:
-            (base, options, changes), planner = SHIELDED_BURST[name], False
+            (base, options, changes, mode), planner = SHIELDED_BURST[name], False
         policy, kwargs = load(base)
-        mode = (options or {}).get("choose")
         if options is not None:
-            options = {k: v for k, v in options.items() if k != "choose"}
             policy = StallBurst(policy, **options)
         guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner, **changes)
         shielded = guard.wrap(policy, kwargs["num_views"], kwargs["image_size"])
