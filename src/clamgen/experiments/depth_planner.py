@@ -4,13 +4,13 @@ paper).
 `DepthShieldPlanner` is a `DepthShield` (`clamgen.experiments.depth_shield`) that watches the
 tip's distance to the target. When it has not come 1 cm closer in `STUCK_STEPS` steps
 (`clamgen.experiments.stall.ProgressWindow`: the policy pressing against an obstacle, or
-circling), it plans a joint path to the
-target with OMPL's RRT-Connect (`clamgen.baselines.rrt.plan_joint_path`), on the obstacle
-surface the shield has seen so far: a state is valid when the arm keeps the shield's margin
-from that surface and from the table. It follows the path, still through the shield, and
-plans again if it gets stuck once more (at most `MAX_PLANS` plans an episode). Without a path
-the policy keeps acting. The planning happens inside `act`, on the step that found the policy
-stuck (up to `PLAN_TIME_S`); `episode_plan_time_s` sums it over the episode.
+circling), it plans a joint path to the target with OMPL's RRT-Connect
+(`clamgen.baselines.rrt.plan_joint_path`), on the obstacle surface the shield has seen so far:
+a state is valid when the arm keeps the shield's margin from that surface and from the table.
+It follows the path, still through the shield, and plans again if it gets stuck once more (at
+most `MAX_PLANS` plans an episode). Without a path the policy keeps acting. The planning
+happens inside `act`, on the step that found the policy stuck (up to `PLAN_TIME_S`);
+`episode_plan_time_s` sums it over the episode.
 
 Nothing privileged is read: the depth images, joints and goal of the observation, the
 cameras' fixed poses and the arm's kinematics. RRT with the full scene model (the `rrt`
