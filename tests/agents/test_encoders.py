@@ -74,6 +74,23 @@ def test_output_shapes_and_range() -> None:
     assert fuse(encoding, low_dim).shape == (5, TINY.feature_dim + TINY.low_dim_size)
 
 
+def test_acting_projection_over_nonzero_features_equals_the_dense_one() -> None:
+    """One observation without gradients skips each view's zero features (after the ReLU,
+    most of them): the same product, to float32 rounding, sparse and dense views alike."""
+    encoder = make_encoder()
+    generator = torch.Generator().manual_seed(3)
+    features = torch.rand(1, TINY.num_views, TINY.view_feature_dim, generator=generator)
+    zero = torch.rand(features.shape, generator=generator) < 0.85
+    features[0, :2][zero[0, :2]] = 0.0  # views 0 and 1 sparse, view 2 dense
+    dense = torch.einsum("bvf,vfh->bvh", features, encoder.view_weight)
+    with torch.no_grad():
+        acting = encoder.project(features)
+    torch.testing.assert_close(acting, dense, rtol=1e-5, atol=1e-6)
+    features[0, 0] = 0.0  # a view that shows nothing
+    with torch.no_grad():
+        assert encoder.project(features)[0, 0].abs().max() == 0.0
+
+
 def test_wrong_image_shape_is_rejected() -> None:
     with pytest.raises(ValueError, match="expected images"):
         make_encoder()(random_images(dataclasses.replace(TINY, num_views=2), 2))

@@ -47,6 +47,9 @@ __all__ = [
     "view_dropout_mask",
 ]
 
+SPARSE_MAX_DENSITY = 0.5
+"""`MultiViewEncoder.project_nonzero` gathers a view's weight rows only when at most this
+fraction of its features is nonzero (above it, reading every row is cheaper than copying)."""
 EMULATED_BF16_ENV = "CLAMGEN_EMULATED_BF16"
 """Set to 1 to run `EncoderConfig.bf16_autocast` also on CPUs that emulate bf16 (slower; closer
 to the numbers of machines that compute it in hardware)."""
@@ -281,10 +284,31 @@ class MultiViewEncoder(nn.Module):
     def project(self, view_features: torch.Tensor) -> torch.Tensor:
         """W_v f_v for each view, the first dense layer's per-view part: (B, V, F) ->
         (B, V, hidden). :meth:`merge_projected` and :meth:`single_views_projected` take it, so
-        a training step that needs both computes it once."""
+        a training step that needs both computes it once. One observation without gradients
+        (acting) takes :meth:`project_nonzero`."""
+        if len(view_features) == 1 and not torch.is_grad_enabled():
+            return self.project_nonzero(view_features)
         # unbind (not indexing) so the backward pass stacks the gradients in one allocation.
         per_view = zip(view_features.unbind(1), self.view_weight.unbind(0), strict=True)
         return torch.stack([f @ w for f, w in per_view], dim=1)
+
+    def project_nonzero(self, view_features: torch.Tensor) -> torch.Tensor:
+        """:meth:`project` of one observation (1, V, F), over each view's nonzero features
+        only. After the convs' ReLU most features are exactly 0 (86-88% for the shipped
+        policies on blocked tasks), so this reads that much less of W_v (1.3 MB a view at
+        F = 1296, hidden 256): acting between renders, with W out of the CPU's caches, the
+        dense product was the policy's largest cost. The same sum without its zero terms,
+        in another order (equal to float32 rounding); a view with more than
+        `SPARSE_MAX_DENSITY` of its features nonzero (keypoints) takes the dense product."""
+        rows = []
+        for features, weight in zip(view_features[0], self.view_weight, strict=True):
+            nonzero = features.nonzero().squeeze(1)
+            if len(nonzero) > SPARSE_MAX_DENSITY * len(features):
+                rows.append(features @ weight)
+            else:
+                kept = features.index_select(0, nonzero)
+                rows.append(kept @ weight.index_select(0, nonzero))
+        return torch.stack(rows)[None]
 
     def _dense_head(self, pre_activation: torch.Tensor) -> torch.Tensor:
         encoding = self.head(F.relu(pre_activation))

@@ -263,15 +263,40 @@ def hidden_points(points: np.ndarray, views: tuple, filled: tuple) -> np.ndarray
 
 @njit(cache=True, nogil=True)
 def hidden_configurations(
-    shells: np.ndarray, obstacle: np.ndarray, near_m: float, views: tuple, filled: tuple
+    frames: np.ndarray,
+    shell: np.ndarray,
+    shell_group: np.ndarray,
+    widen: np.ndarray,
+    obstacle: np.ndarray,
+    near_m: float,
+    views: tuple,
+    filled: tuple,
 ) -> np.ndarray:
-    """Per configuration b, whether a point of its shell `shells[b]` (B, S, 3) is hidden
-    (`hidden_points`) within `near_m` of a point of `obstacle` (P, 3): (B,)."""
-    out = np.zeros(shells.shape[0], np.bool_)
-    if obstacle.shape[0] == 0:
+    """Per configuration b, whether a point of the hand's shell is hidden (`hidden_points`)
+    within `near_m` of a point of `obstacle` (P, 3): (B,). The shell: points `shell` (S, 3),
+    each fixed in the link frame of its group `shell_group` (S,), placed by `frames` (B,
+    groups, 4, 4), every point of group g within `widen[g]` - `near_m` of its frame's origin."""
+    configs, groups = frames.shape[0], frames.shape[1]
+    out = np.zeros(configs, np.bool_)
+    # Obstacle points that can lie within `near_m` of the shell: those in the box around the
+    # frames' origins widened by each group's extent (a superset).
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for b in range(configs):
+        for g in range(groups):
+            for k in range(3):
+                low[k] = min(low[k], frames[b, g, k, 3] - widen[g])
+                high[k] = max(high[k], frames[b, g, k, 3] + widen[g])
+    count = 0
+    near = np.empty(obstacle.shape[0], np.int64)
+    for j in range(obstacle.shape[0]):
+        if _in_box(obstacle, j, low, high):
+            near[count] = j
+            count += 1
+    if count == 0:
         return out
-    # Only shell points in the box around the obstacle points widened by `near_m` (and a
-    # rounding allowance) can be near one.
+    obstacle = obstacle[near[:count]]
+    # Only shell points in the box around those points widened by `near_m` (and a rounding
+    # allowance) can be near one.
     low, high = np.full(3, np.inf), np.full(3, -np.inf)
     for j in range(obstacle.shape[0]):
         for k in range(3):
@@ -279,14 +304,21 @@ def hidden_configurations(
             high[k] = max(high[k], obstacle[j, k])
     low -= near_m + 1e-4
     high += near_m + 1e-4
-    for b in range(shells.shape[0]):
-        shell = shells[b]
+    point = np.empty((1, 3))
+    for b in range(configs):
         for i in range(shell.shape[0]):
+            frame = frames[b, shell_group[i]]
+            for k in range(3):  # rotation times the local point, plus the origin
+                total = 0.0
+                for j in range(3):
+                    total += shell[i, j] * frame[k, j]
+                point[0, k] = total + frame[k, 3]
+            # The cheap tests first; each configuration stops at its first hidden point.
             if (
-                _in_box(shell, i, low, high)
-                and _behind_hiding_surface(shell, i, views)
-                and _near_any(shell, i, obstacle, near_m * near_m)
-                and not _filled(shell, i, filled)
+                _in_box(point, 0, low, high)
+                and _behind_hiding_surface(point, 0, views)
+                and _near_any(point, 0, obstacle, near_m * near_m)
+                and not _filled(point, 0, filled)
             ):
                 out[b] = True
                 break

@@ -436,13 +436,14 @@ class ArmShadow:
                 for g, shell in zip(self.geoms, shells, strict=True)
             ]
         )
-        # (frame, which shell points it carries), once: the hand's geoms share one link.
-        self._shell_groups = [(f, shell_frame == f) for f in np.unique(shell_frame)]
+        # The frames that carry shell points (the hand's geoms share one link), and per point
+        # its frame's place among them.
+        self._group_frames, self._shell_group = np.unique(shell_frame, return_inverse=True)
         # Per group, how far its shell points lie from their frame's origin (a box around the
         # origins widened by this holds every shell point).
-        self._group_frames = np.array([f for f, _ in self._shell_groups])
+        distance = np.linalg.norm(self._shell, axis=1)
         self._group_radii = np.array(
-            [np.linalg.norm(self._shell[mine], axis=1).max() for _, mine in self._shell_groups]
+            [distance[self._shell_group == g].max() for g in range(len(self._group_frames))]
         )
         self._reach = arm.radii[self.geoms] + 0.5 * np.sqrt(3.0) * VOXEL_M
         self.deepest = np.full(views * height * width, -np.inf, np.float32)
@@ -514,24 +515,20 @@ class ArmShadow:
     def hidden(self, joints: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
         """Whether the distal geoms at each of joints (B, 6) reach into hidden space within
         `near_m` of a point of `obstacle` (P, 3) seen so far: (B,)."""
-        joints = np.atleast_2d(joints)
-        frames = forward_kinematics(np.asarray(joints, np.float64))
-        # Obstacle points that can lie within `near_m` of the shell: those in a box around
-        # it (around the frames' origins, widened by each group's extent: a superset).
-        origins = frames[:, self._group_frames, :3, 3]  # B, groups, 3
-        widen = (self._group_radii + self.near_m + SHADOW_SPACING_M)[:, None]
-        low, high = (origins - widen).min(axis=(0, 1)), (origins + widen).max(axis=(0, 1))
-        obstacle = obstacle[_in_boxes(obstacle, low, high)]
-        if len(obstacle) == 0:
-            return np.zeros(len(joints), bool)
-        points = np.empty((len(joints), len(self._shell), 3))
-        for frame, mine in self._shell_groups:
-            rotation, origin = frames[:, frame, :3, :3], frames[:, frame, None, :3, 3]
-            points[:, mine] = self._shell[mine] @ rotation.transpose(0, 2, 1) + origin
-        # Per configuration, the cheap tests first: in the box around the obstacle points,
-        # behind a hiding surface in the views, near seen obstacle surface, not filled by
-        # the hand before (compiled: each configuration stops at its first hidden point).
-        return hidden_configurations(points, obstacle, self.near_m, self._views(), self._filled())
+        frames = forward_kinematics(np.asarray(joints, np.float64).reshape(-1, ur5.NUM_JOINTS))
+        # Compiled: the obstacle points near the hand's frames, then per configuration its
+        # shell points in the box around those, behind a hiding surface in the views, near
+        # seen obstacle surface, not filled by the hand before (stopping at the first).
+        return hidden_configurations(
+            frames[:, self._group_frames],
+            self._shell,
+            self._shell_group,
+            self._group_radii + self.near_m + SHADOW_SPACING_M,
+            obstacle,
+            self.near_m,
+            self._views(),
+            self._filled(),
+        )
 
     def hidden_points(self, points: np.ndarray) -> np.ndarray:
         """Which of `points` (P, 3) are hidden: no view has seen them free, and one has had a
