@@ -371,3 +371,14 @@ def test_hybrid_guards_describe_the_committed_hybrid_rows():
     assert isinstance(guard.wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)
     assert guard.wrap(IKInterpolationPolicy(), 1, 64).depth_key == "fine_depth"
     assert not isinstance(DepthGuard().wrap(IKInterpolationPolicy(), 1, 64), DepthShieldPlanner)
+
+
+def test_compiled_frames_equal_the_forward_kinematics() -> None:
+    """The shield's compiled DH frames are `forward_kinematics`' first six, to rounding."""
+    from clamgen.experiments.depth_kernels import dh_frames
+    from clamgen.robot import ur5
+    from clamgen.robot.kinematics import forward_kinematics
+
+    joints = np.random.default_rng(4).uniform(-np.pi, np.pi, (40, ur5.NUM_JOINTS))
+    frames = dh_frames(joints, ur5.DH_D, ur5.DH_A, ur5.DH_ALPHA)
+    np.testing.assert_allclose(frames, forward_kinematics(joints)[:, :6], rtol=0, atol=1e-12)

@@ -323,3 +323,29 @@ def hidden_configurations(
                 out[b] = True
                 break
     return out
+
+
+@njit(cache=True, nogil=True)
+def dh_frames(joints: np.ndarray, d: np.ndarray, a: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """DH frames 1..6 at each of `joints` (B, 6), in the base frame: (B, 6, 4, 4), the first six
+    of `clamgen.robot.kinematics.forward_kinematics` (the same products of standard DH link
+    transforms, to float64 rounding), without numpy's per-call overhead, which the shield pays
+    several times a step for a handful of configurations."""
+    configs, links = joints.shape
+    out = np.empty((configs, links, 4, 4))
+    link = np.zeros((4, 4))
+    link[3, 3] = 1.0
+    for b in range(configs):
+        pose = np.eye(4)
+        for i in range(links):
+            ct, st = np.cos(joints[b, i]), np.sin(joints[b, i])
+            ca, sa = np.cos(alpha[i]), np.sin(alpha[i])
+            link[0, 0], link[0, 1], link[0, 2], link[0, 3] = ct, -st * ca, st * sa, a[i] * ct
+            link[1, 0], link[1, 1], link[1, 2], link[1, 3] = st, ct * ca, -ct * sa, a[i] * st
+            link[2, 0], link[2, 1], link[2, 2], link[2, 3] = 0.0, sa, ca, d[i]
+            if i == 0:
+                pose[:] = link
+            else:
+                pose = pose @ link
+            out[b, i] = pose
+    return out

@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 from clamgen.experiments.depth_kernels import (
     any_in_boxes,
     capsule_clearances,
+    dh_frames,
     hidden_configurations,
     hidden_points,
     lift_pixels,
@@ -102,6 +103,12 @@ def _in_boxes(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarr
     return inside
 
 
+def _frames(joints: np.ndarray) -> np.ndarray:
+    """DH frames 1..6 (B, 6, 4, 4) at joints (B, 6) or (6,) (compiled: `dh_frames`)."""
+    joints = np.asarray(joints, np.float64).reshape(-1, ur5.NUM_JOINTS)
+    return dh_frames(joints, ur5.DH_D, ur5.DH_A, ur5.DH_ALPHA)
+
+
 class ArmCapsules:
     """The arm's collision geoms as capsules (segments with radii) at given joint angles (the
     gripper's two cylinders as capsules of the same radius, a little longer: conservative)."""
@@ -141,7 +148,7 @@ class ArmCapsules:
     def segments_many(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(starts, ends), each (B, G, 3), of the geoms' axes at joints (B, 6), by the
         analytic kinematics (batched)."""
-        frames = forward_kinematics(np.asarray(joints, np.float64))[:, self._frame]  # B, G
+        frames = _frames(joints)[:, self._frame]  # B, G
         ends = self._local[None] @ frames[..., :3, :3].transpose(0, 1, 3, 2)  # B, G, 2, 3
         ends = ends + frames[..., None, :3, 3]
         return ends[:, :, 0], ends[:, :, 1]
@@ -515,7 +522,7 @@ class ArmShadow:
     def hidden(self, joints: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
         """Whether the distal geoms at each of joints (B, 6) reach into hidden space within
         `near_m` of a point of `obstacle` (P, 3) seen so far: (B,)."""
-        frames = forward_kinematics(np.asarray(joints, np.float64).reshape(-1, ur5.NUM_JOINTS))
+        frames = _frames(joints)
         # Compiled: the obstacle points near the hand's frames, then per configuration its
         # shell points in the box around those, behind a hiding surface in the views, near
         # seen obstacle surface, not filled by the hand before (stopping at the first).
@@ -602,7 +609,8 @@ class DepthClearance:
         target = step_target(joints, action)
         theta = float(np.abs(target - joints).sum())
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
-        axes = np.stack([*self.arm.segments(joints), *self.arm.segments(target)])  # 4, G, 3
+        starts, ends = self.arm.segments_many(np.stack([joints, target]))  # 2, G, 3 each
+        axes = np.concatenate([starts, ends])  # 4, G, 3
         lowest = axes[:, :, 2].min(axis=0) - self.arm.radii
         visible = False  # True once no check of the step is known to reach into hidden space
         if lowest[self.arm.touch_table].min() < C.TABLE_TOP_Z_M + reach:
