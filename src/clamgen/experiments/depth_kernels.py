@@ -2,12 +2,13 @@
 
 The shield tests every depth pixel the arm's motion changed (about 1400 a step for three
 128-pixel views) against the arm's capsules, every configuration it checks against the
-obstacle points seen, and, for one view, the points of the arm's shell against the unseen
-space behind seen surfaces. In numpy each test is a dozen passes over (geoms, points)
-arrays, most of them spent on points already decided; these loops decide each point at its
-first geom within reach and skip the rest. They compute the same distances (in float64,
-point minus the nearest point of the segment, not an expanded square), so the shield's
-decisions are those of the array code except within rounding of a threshold.
+obstacle points seen, and the points of the hand's shell against the unseen space behind
+seen surfaces (placing them by the arm's DH frames, `dh_frames`). In numpy each test is a
+dozen passes over (geoms, points) arrays, most of them spent on points already decided;
+these loops decide each point at its first geom within reach and skip the rest. They compute
+the same distances (in float64, point minus the nearest point of the segment, not an
+expanded square), so the shield's decisions are those of the array code except within
+rounding of a threshold.
 
 Compiled on first use (about a second each) and cached beside this file.
 """
@@ -275,7 +276,9 @@ def hidden_configurations(
     """Per configuration b, whether a point of the hand's shell is hidden (`hidden_points`)
     within `near_m` of a point of `obstacle` (P, 3): (B,). The shell: points `shell` (S, 3),
     each fixed in the link frame of its group `shell_group` (S,), placed by `frames` (B,
-    groups, 4, 4), every point of group g within `widen[g]` - `near_m` of its frame's origin."""
+    groups, 4, 4); `widen[g]`: how far group g's points lie from their frame's origin at
+    most, plus `near_m` and an allowance (the box around the origins widened by it holds
+    every obstacle point that can be near the shell)."""
     configs, groups = frames.shape[0], frames.shape[1]
     out = np.zeros(configs, np.bool_)
     # Obstacle points that can lie within `near_m` of the shell: those in the box around the
