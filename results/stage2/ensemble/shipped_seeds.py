@@ -4,10 +4,11 @@ The shipped `residual-3views` / `residual-2views` / `residual-1view` (since sess
 seed of their recipe: a fresh student regressed 48000 steps on the pooled DAgger data of
 lookahead-teacher runs (`offline.py`; four 3-view runs, distill seed 1, for 3 views; those and
 a 2-view run, distill seed 4, for 2 and 1 views), then DAgger continued two iterations with
-the student driving (`continue_dagger.py`, distill seed 5). Seeds S = 7, 8 (and 9 for one
-view) repeat both steps with distill seed S on the same pooled data (`seed_lane.sh VIEWS S
-...`; README, "More seeds of the shipped 2- and 1-view recipes" and "Seeds of the shipped
-3-view recipe"), into `runs/offline/<pool>-48k-s<S>-dagger/`.
+the student driving (`continue_dagger.py`, distill seed 5). Seeds S = 7, 8 (and 9 for three
+views and one view; 11 and 12 for two and one view, on the pool with its 2-view run rebuilt)
+repeat both steps with distill seed S on the same pooled data (`seed_lane.sh VIEWS S ...`;
+README, "More seeds of the shipped 2- and 1-view recipes", "Seeds of the shipped 3-view
+recipe" and "More seeds for the shielded rows"), into `runs/offline/<pool>-48k-s<S>-dagger/`.
 
 Each seed's student after two iterations (`policy_iteration1.pt`) is evaluated once its
 continuation has finished, on the 200 + 200 test tasks, alone, through the hybrid's depth
@@ -48,8 +49,10 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
 OUT = HERE / "seeds"
 TABLE2 = ROOT / "results" / "table2"
-SEEDS = {3: (7, 8), 2: (7, 8), 1: (7, 8, 9)}
-"""Seed 10 of one view was planned, and stopped before it ran for the session's clock."""
+SEEDS = {3: (7, 8, 9), 2: (7, 8, 11, 12), 1: (7, 8, 9, 11, 12)}
+"""Seed 10 of one view was planned, and stopped before it ran for the session's clock. Seed 9
+of three views and seeds 11 and 12 of two and one view were added in session 32 (README,
+"More seeds for the shielded rows"; 11 and 12 on a pool whose 2-view run was rebuilt)."""
 SHIPPED_SEED = 5
 """The continuation seed of the shipped students (their regression ran with distill seed 4)."""
 FAMILIES = ("obstacles", "blocked")
@@ -198,9 +201,10 @@ def write_seeds() -> Path:
     }
     command = "python results/stage2/ensemble/shipped_seeds.py --summarize-only"
     note = (
-        "seed 5 is the shipped policy; seeds 7 and 8 (and 9 for one view) repeat its "
-        "regression and DAgger continuation with that distill seed on the same pooled data (3 "
-        "views: on a pool rebuilt from the same runs' commands)"
+        "seed 5 is the shipped policy; seeds 7 and 8 (and 9 for three views and one view) "
+        "repeat its regression and DAgger continuation with that distill seed on the same "
+        "pooled data (3 views: on a pool rebuilt from the same runs' commands; seeds 11 and "
+        "12 of two and one view: on a pool whose 2-view run was rebuilt)"
     )
     compare = [
         (_name(views, kind), _name(views, "alone"))
