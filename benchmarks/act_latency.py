@@ -103,14 +103,9 @@ def episodes(policy, env_kwargs: dict) -> list[list[dict]]:
     for family in ("blocked", "obstacles"):
         env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
         for i in range(NUM_EPISODES):
-            obs, _ = env.reset(seed=FIRST_SEED + i)
-            policy.reset(env)
-            seen, done = [obs], False
-            while not done:
-                obs, _, terminated, truncated, _ = env.step(policy.act(obs))
-                done = terminated or truncated
-                seen.append(obs)
-            out.append(seen[:-1])
+            seen: list[dict] = []
+            run_episode(env, policy, FIRST_SEED + i, on_step=lambda obs, *_, s=seen: s.append(obs))
+            out.append(seen[:-1])  # (the observation after the last step is not acted on)
         env.close()
     return out
 
