@@ -122,7 +122,7 @@ class Live:
         ]
         self.episode = 0
 
-    def run_episode(self) -> list[float]:
+    def next_episode(self) -> list[float]:
         env = self.envs[self.episode % 2]
         seed = FIRST_SEED + (self.episode // 2) % NUM_EPISODES
         self.episode += 1
@@ -191,7 +191,7 @@ def time_live(loaded: dict) -> dict[str, list[float]]:
     times: dict[str, list[float]] = {label: [] for label in loaded}
     for _ in range(2 * NUM_EPISODES):
         for label, (_, live) in loaded.items():
-            times[label] += live.run_episode()
+            times[label] += live.next_episode()
     return times
 
 
