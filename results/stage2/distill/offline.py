@@ -127,6 +127,13 @@ def main() -> None:
         help="the student's mixture components (agent.actor_components; default: the run's)",
     )
     parser.add_argument(
+        "--encoder-channels",
+        type=int,
+        default=None,
+        help="channels of the student's convolutions (agent.encoder.num_channels; default: "
+        "the run's)",
+    )
+    parser.add_argument(
         "--num-views",
         type=int,
         default=None,
@@ -224,9 +231,13 @@ def main() -> None:
     if args.actor_components:
         agent_changes["actor_components"] = args.actor_components
     env = student.env
+    if args.encoder_channels:
+        agent_changes["encoder"] = dataclasses.replace(
+            student.agent.encoder, num_channels=args.encoder_channels
+        )
     if args.num_views:
-        encoder = dataclasses.replace(student.agent.encoder, num_views=args.num_views)
-        agent_changes["encoder"] = encoder
+        encoder = agent_changes.get("encoder", student.agent.encoder)
+        agent_changes["encoder"] = dataclasses.replace(encoder, num_views=args.num_views)
         env = dataclasses.replace(env, num_views=args.num_views)
     if args.zoom:
         if args.pool_cache is None:
@@ -374,6 +385,7 @@ def main() -> None:
         "updates": args.updates,
         "torch_threads": args.torch_threads or student.loop.torch_threads,
         "hidden_sizes": list(student.agent.hidden_sizes),
+        "encoder_channels": student.agent.encoder.num_channels,
         "actor_components": student.agent.actor_components,
         "loss": loss,
     }
