@@ -382,3 +382,36 @@ def test_compiled_frames_equal_the_forward_kinematics() -> None:
     joints = np.random.default_rng(4).uniform(-np.pi, np.pi, (40, ur5.NUM_JOINTS))
     frames = dh_frames(joints, ur5.DH_D, ur5.DH_A, ur5.DH_ALPHA)
     np.testing.assert_allclose(frames, forward_kinematics(joints)[:, :6], rtol=0, atol=1e-12)
+
+
+def test_depth_step_clearance_equals_the_exact_check_along_the_step():
+    """The depth checker's step clearance (shortcut boxes, one batch of checks) is the smallest
+    clearance of the step's checked configurations one by one, with the unseen-space test."""
+    from clamgen.experiments.depth_shield import HIDDEN_CLEARANCE_M, ArmShadow, DepthClearance
+    from clamgen.experiments.shield import step_clearance
+
+    env = ReachEnv(
+        num_obstacles=2, task_family="blocked", obs_mode="both", num_views=1, image_size=SIZE
+    )
+    obs, _ = env.reset(seed=TEST_SEEDS.start + 2)
+    env.close()
+    joints = np.asarray(obs["observation"], np.float64)[:6]
+    occupancy = DepthOccupancy(1, SIZE, SIZE)
+    shadow = ArmShadow(occupancy, near_m=0.05, behind_surfaces=True)
+    checker = DepthClearance(occupancy.arm, margin_m=0.02, shadow=shadow)
+    checker.points = occupancy.update(obs)
+    shadow.update(obs["images"], joints)
+    rng = np.random.default_rng(3)
+    # Configurations from the start towards the obstacles and the table, random actions.
+    along = joints + rng.uniform(-0.8, 0.8, (30, 6)) * np.linspace(0.0, 1.0, 30)[:, None]
+    values = []
+    for q in along:
+        for action in rng.uniform(-1.0, 1.0, (4, 6)):
+            fast = checker.step_clearance(q, action)
+            assert fast == pytest.approx(step_clearance(checker, q, action), abs=1e-9)
+            values.append(fast)
+    values = np.array(values)
+    # The steps tested cover every branch: clear, near points or the table, into hidden space.
+    assert (values == checker.margin_m).any()
+    assert (values == HIDDEN_CLEARANCE_M).any()
+    assert ((values < checker.margin_m) & (values != HIDDEN_CLEARANCE_M)).any()

@@ -33,7 +33,7 @@ from clamgen.experiments.depth_kernels import (
     surface_candidates,
     within_capsules,
 )
-from clamgen.experiments.shield import step_checks, step_checks_many, step_target
+from clamgen.experiments.shield import checks_to, step_checks_many, step_target
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import forward_kinematics
 from clamgen.sim import constants as C
@@ -586,16 +586,17 @@ class DepthClearance:
             return min(value, HIDDEN_CLEARANCE_M)
         return value
 
-    def clearances(self, joints: np.ndarray, visible: bool = False) -> np.ndarray:
+    def clearances(
+        self, joints: np.ndarray, visible: bool = False, hidden: np.ndarray | None = None
+    ) -> np.ndarray:
         """`clearance` at each of joints (B, 6); `visible`: none of them is known to reach
-        into hidden space (the test is skipped)."""
+        into hidden space (the test is skipped); `hidden`: which of them do, when the caller
+        has tested it already."""
         values = self.arm.clearances(joints, self.points, cap=self.margin_m)
         if self.shadow is not None and not visible:
-            values = np.where(
-                self.shadow.hidden(joints, self.points),
-                np.minimum(values, HIDDEN_CLEARANCE_M),
-                values,
-            )
+            if hidden is None:
+                hidden = self.shadow.hidden(joints, self.points)
+            values = np.where(hidden, np.minimum(values, HIDDEN_CLEARANCE_M), values)
         return values
 
     def step_clearance(self, joints: np.ndarray, action: np.ndarray) -> float:
@@ -605,16 +606,17 @@ class DepthClearance:
         along the step would return the margin. (Between its ends a point of the arm strays
         from the straight line by at most R theta^2 / 8, R its distance from the base and
         theta the joints' summed change: about 3 mm for a typical step; the boxes are widened
-        by that bound.)"""
+        by that bound.) Otherwise the step's checks are built once and tested in one batch."""
         target = step_target(joints, action)
         theta = float(np.abs(target - joints).sum())
         reach = self.margin_m + ARM_REACH_M * theta * theta / 8.0
         starts, ends = self.arm.segments_many(np.stack([joints, target]))  # 2, G, 3 each
         axes = np.concatenate([starts, ends])  # 4, G, 3
         lowest = axes[:, :, 2].min(axis=0) - self.arm.radii
-        visible = False  # True once no check of the step is known to reach into hidden space
         if lowest[self.arm.touch_table].min() < C.TABLE_TOP_Z_M + reach:
-            return float(self.step_clearances(joints, np.asarray(action)[None])[0])
+            return float(self.clearances(checks_to(joints, target)).min())
+        visible = False  # True once no check of the step is known to reach into hidden space
+        checks = None
         if len(self.points) and self.shadow is not None:
             # The hand reaches into hidden space only near a kept point: within `near_m` of
             # its surface along the step.
@@ -623,14 +625,17 @@ class DepthClearance:
             low = (axes[:, hand].min(axis=0) - widen[:, None]).min(axis=0)
             high = (axes[:, hand].max(axis=0) + widen[:, None]).max(axis=0)
             if any_in_boxes(self.points, low[None], high[None]):
-                if self.shadow.hidden(step_checks(joints, action), self.points).any():
-                    return float(self.step_clearances(joints, np.asarray(action)[None])[0])
-                visible = True  # (`step_checks` gives `step_checks_many`'s configurations)
+                checks = checks_to(joints, target)
+                hidden = self.shadow.hidden(checks, self.points)
+                if hidden.any():
+                    return float(self.clearances(checks, hidden=hidden).min())
+                visible = True
         if len(self.points):
             # Per geom, the box around its axis at both ends widened by its radius and reach.
             widen = (self.arm.radii + reach)[:, None]
             if any_in_boxes(self.points, axes.min(axis=0) - widen, axes.max(axis=0) + widen):
-                return float(self.step_clearances(joints, np.asarray(action)[None], visible)[0])
+                checks = checks_to(joints, target) if checks is None else checks
+                return float(self.clearances(checks, visible).min())
         return self.margin_m
 
     def step_clearances(

@@ -120,7 +120,12 @@ class ClearanceChecker:
 def step_checks(joints: np.ndarray, action: np.ndarray) -> np.ndarray:
     """The configurations (K, 6) the env checks along its straight joint step for `action`,
     the step's end last."""
-    delta = step_target(joints, action) - joints
+    return checks_to(joints, step_target(joints, action))
+
+
+def checks_to(joints: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """`step_checks` of the step from `joints` that ends at `target` (`step_target`)."""
+    delta = target - joints
     checks = max(1, int(np.ceil(np.max(np.abs(delta)) / COLLISION_CHECK_RESOLUTION_RAD)))
     return joints + (np.arange(1, checks + 1) / checks)[:, None] * delta
 
