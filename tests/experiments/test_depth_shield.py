@@ -415,3 +415,45 @@ def test_depth_step_clearance_equals_the_exact_check_along_the_step():
     assert (values == checker.margin_m).any()
     assert (values == HIDDEN_CLEARANCE_M).any()
     assert ((values < checker.margin_m) & (values != HIDDEN_CLEARANCE_M)).any()
+
+
+WARM_UP_CHECK = """
+from numba.core.registry import CPUDispatcher
+
+from clamgen.baselines import IKInterpolationPolicy
+from clamgen.envs import ReachEnv
+from clamgen.experiments import depth_kernels
+from clamgen.experiments.config import TEST_SEEDS
+from clamgen.experiments.depth_planner import ESCAPES, HYBRID
+from clamgen.experiments.depth_shield import warm_up
+from clamgen.experiments.evaluate import evaluate
+
+
+def signatures():
+    kernels = [getattr(depth_kernels, name) for name in dir(depth_kernels)]
+    return {k: set(k.signatures) for k in kernels if isinstance(k, CPUDispatcher)}
+
+
+warm_up()
+warm = signatures()
+for views, guard in ((1, ESCAPES[1]), (3, HYBRID[3])):
+    env = ReachEnv(num_obstacles=2, task_family="blocked", num_views=views, image_size=64,
+                   obs_mode="both", **guard.env_kwargs())
+    evaluate(env, guard.wrap(IKInterpolationPolicy(), views, 64), TEST_SEEDS.seeds(2))
+    env.close()
+added = {k.__name__: s - warm[k] for k, s in signatures().items() if s - warm[k]}
+print("added", added)
+"""
+
+
+def test_warm_up_loads_every_kernel_a_shielded_episode_calls():
+    """In a fresh process, after `warm_up` no shielded episode (escapes with the unseen-space
+    test, the hybrid's planner) calls a kernel with argument types it has not loaded: the first
+    act loads nothing."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", WARM_UP_CHECK], capture_output=True, text=True, check=True
+    )
+    assert done.stdout.strip().splitlines()[-1] == "added {}", done.stdout + done.stderr

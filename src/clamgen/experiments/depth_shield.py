@@ -91,6 +91,52 @@ GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 not kept."""
 
 
+_warmed_up = False
+
+
+def warm_up() -> None:
+    """Load the compiled kernels the shield and its planner call, once per process, so that
+    the first act of the first episode does not (numba loads each kernel from its on-disk
+    cache at its first call, after starting itself: 0.2-0.4 s on these CPUs). Each kernel is
+    called on empty inputs of the exact types the shield passes it (numba keeps one machine
+    code per argument types; a test checks that shielded episodes add none), so nothing is
+    computed."""
+    global _warmed_up
+    if _warmed_up:
+        return
+    nothing = np.empty((0, 3))
+    box = np.zeros((1, 3))
+    any_in_boxes(nothing, box, box)
+    # The arm's capsules: batched configurations (strided views of one array), and one
+    # configuration (contiguous).
+    axes = np.zeros((1, 2, 2, 3))
+    capsule_clearances(axes[:, :, 0], axes[:, :, 1], np.zeros(2), nothing, 0.0)
+    capsule_clearances(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.zeros(2), nothing, 0.0)
+    within_capsules(nothing, box, box, np.zeros(1))
+    frames = _frames(ur5.HOME_JOINTS)
+    flat = np.zeros((1, 3), np.float32)
+    lift_pixels(
+        np.zeros(1, np.uint8), np.empty(0, np.int64), DEPTH_OF_CODE, flat, flat, _FAR_CLIP,
+        _ABOVE_TABLE_Z,
+    )  # fmt: skip
+    cells = np.ones(3, np.int64)
+    surface_candidates(
+        nothing, np.zeros(3), TARGET_REACH_M**2, PEDESTAL_RADIUS_M**2, PEDESTAL_TOP_M,
+        GRID_LOW_M, 1.0 / VOXEL_M, cells, np.zeros(1, bool),
+    )  # fmt: skip
+    # `ArmShadow._views()` and `_filled()`'s types: a camera that has seen nothing.
+    views = (
+        np.zeros((1, 3)), np.zeros((1, 3, 3)), np.ones((1, 4)), 1, 1,
+        np.zeros(1, np.float32), np.zeros(1, bool), _SHADOW_TOLERANCE,
+    )  # fmt: skip
+    filled = (nothing, nothing, np.empty(0), GRID_LOW_M, VOXEL_M, cells)
+    shell_group = np.empty(0, np.int64)
+    hidden_configurations(
+        frames[:0, :1], nothing, shell_group, np.zeros(1), nothing, 0.05, views, filled
+    )
+    _warmed_up = True
+
+
 def _in_boxes(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Whether each of `points` (P, 3) lies strictly between `low` and `high`: (P,) for one box
     ((3,) bounds), (P, B) for B boxes ((B, 3) bounds). One coordinate at a time: numpy's
@@ -680,6 +726,7 @@ class DepthShield:
             raise ValueError(f"margin_m must be a number >= 0, got {margin_m}")
         if fine_depth_size < 0:
             raise ValueError(f"fine_depth_size must be >= 0, got {fine_depth_size}")
+        warm_up()
         self.policy = policy
         self.depth_key = "fine_depth" if fine_depth_size else "images"
         size = fine_depth_size or image_size
