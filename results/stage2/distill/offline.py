@@ -127,6 +127,13 @@ def main() -> None:
         help="the student's mixture components (agent.actor_components; default: the run's)",
     )
     parser.add_argument(
+        "--view-dropout",
+        type=float,
+        default=None,
+        help="the student's view dropout in the regression (agent.view_dropout; default: the "
+        "run's)",
+    )
+    parser.add_argument(
         "--encoder-channels",
         type=int,
         default=None,
@@ -230,6 +237,8 @@ def main() -> None:
         agent_changes["hidden_sizes"] = tuple(args.hidden_sizes)
     if args.actor_components:
         agent_changes["actor_components"] = args.actor_components
+    if args.view_dropout is not None:
+        agent_changes["view_dropout"] = args.view_dropout
     env = student.env
     if args.encoder_channels:
         agent_changes["encoder"] = dataclasses.replace(
@@ -386,6 +395,7 @@ def main() -> None:
         "torch_threads": args.torch_threads or student.loop.torch_threads,
         "hidden_sizes": list(student.agent.hidden_sizes),
         "encoder_channels": student.agent.encoder.num_channels,
+        "view_dropout": student.agent.view_dropout,
         "actor_components": student.agent.actor_components,
         "loss": loss,
     }

@@ -194,10 +194,12 @@ STUDENTS = {
         for kind, stem in (("reg", "d3-pool4-48k"), ("near3", "d3-near3"))
     },
     # Session 33: seed 9's regression too, and two levers on seed 7's: 32 conv channels instead
-    # of 16 (`offline.py --encoder-channels 32`), and 96000 regression steps instead of 48000.
+    # of 16 (`offline.py --encoder-channels 32`), 96000 regression steps instead of 48000, and
+    # no view dropout in the regression (`--view-dropout 0`).
     "3v-reg-s9": str(ROOT / "runs" / "offline" / "d3-pool4-48k-s9" / "policy.pt"),
     "3v-wide32-s7": str(ROOT / "runs" / "offline" / "d3-wide32-s7" / "policy.pt"),
     "3v-reg96k-s7": str(ROOT / "runs" / "offline" / "d3-pool4-96k-s7" / "policy.pt"),
+    "3v-nodrop-s7": str(ROOT / "runs" / "offline" / "d3-nodrop-s7" / "policy.pt"),
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
     # keypoints, nothing rendered) regressed on the same four-run pool as the 3-view seeds:
     # are the near-target tasks lost to what the cameras show, or to acting without lookahead?
@@ -286,7 +288,10 @@ COMPARED = {
     },
     "3v-near3-s7": ("3v-reg-s7",),
     "3v-near3-s8": ("3v-reg-s8",),
-    **{name: ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9") for name in ("3v-wide32-s7", "3v-reg96k-s7")},
+    **{
+        name: ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9")
+        for name in ("3v-wide32-s7", "3v-reg96k-s7", "3v-nodrop-s7")
+    },
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 
