@@ -1,0 +1,27 @@
+#!/bin/bash
+# One lane of session 33's pre-registered regressions for the 3-view students acting alone
+# (README, "A wider encoder, and a longer regression (session 33)", and its session-34
+# amendment): each a student regressed on the four 3-view DAgger runs' pooled data
+# (runs/reseed/d3-seed1..4, rebuilt with rebuild_pool.sh), memory-mapped from one cache so that
+# two lanes share it. A finished regression (policy.pt) is skipped; an unfinished one resumes
+# from its last 1000 updates.
+#   results/stage2/ensemble/lever_lane.sh NAME...
+#   NAME: reg-sS (the shipped recipe's regression, seed S), wide32-s7, reg96k-s7, nodrop-s7
+set -e
+cd "$(dirname "$0")/../../.."  # the repository root
+export MUJOCO_GL=egl OMP_NUM_THREADS=1
+SRC=runs/reseed/d3-seed1
+POOL="runs/reseed/d3-seed2 runs/reseed/d3-seed3 runs/reseed/d3-seed4"
+CACHE=runs/pool-cache/d3-pool4-48k
+for NAME in "$@"; do
+  case "$NAME" in
+    reg-s*) SEED=${NAME#reg-s}; OUT=runs/offline/d3-pool4-48k-s$SEED; ARGS="--updates 48000" ;;
+    wide32-s7) SEED=7; OUT=runs/offline/d3-wide32-s7; ARGS="--updates 48000 --encoder-channels 32" ;;
+    reg96k-s7) SEED=7; OUT=runs/offline/d3-pool4-96k-s7; ARGS="--updates 96000" ;;
+    nodrop-s7) SEED=7; OUT=runs/offline/d3-nodrop-s7; ARGS="--updates 48000 --view-dropout 0" ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7)" >&2; exit 2 ;;
+  esac
+  [ -f $OUT/policy.pt ] && continue
+  .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
+    --pool $POOL --set seed=$SEED --pool-cache $CACHE
+done
