@@ -48,6 +48,7 @@ MEMBERS = {
 }
 MEAN = "mean"
 SEEDS = HERE / "seeds"
+LEVERS33 = HERE / "levers33"
 GUARDED = {
     "3v-s5+hybrid": ("3v-s5", True),
     **{f"3v-s{seed}+shield": (f"3v-s{seed}", False) for seed in (5, 7, 8)},
@@ -186,20 +187,27 @@ STUDENTS = {
     # ... the students' teacher without its lookahead (true obstacle poses, acting reactively;
     # renders nothing): does a reactive policy that sees the poses exactly fail the same tasks?
     "teacher-reactive": str(ROOT / "results" / "stage2" / "distill" / "teacher" / "policy.pt"),
-    # ... and the regressions of seeds 7 and 8 before their continuation, against the same
-    # regressions with the states near their target drawn three times as often.
+    # ... and the regressions of seeds 7 and 8 before their continuation (`3v-reg-s7|8`, now
+    # below: their files were lost with a machine), against the same regressions with the
+    # states near their target drawn three times as often.
     **{
-        f"3v-{kind}-s{seed}": str(ROOT / "runs" / "offline" / f"{stem}-s{seed}" / "policy.pt")
+        f"3v-near3-s{seed}": str(ROOT / "runs" / "offline" / f"d3-near3-s{seed}" / "policy.pt")
         for seed in (7, 8)
-        for kind, stem in (("reg", "d3-pool4-48k"), ("near3", "d3-near3"))
     },
-    # Session 33: seed 9's regression too, and two levers on seed 7's: 32 conv channels instead
-    # of 16 (`offline.py --encoder-channels 32`), 96000 regression steps instead of 48000, and
-    # no view dropout in the regression (`--view-dropout 0`).
-    "3v-reg-s9": str(ROOT / "runs" / "offline" / "d3-pool4-48k-s9" / "policy.pt"),
-    "3v-wide32-s7": str(ROOT / "runs" / "offline" / "d3-wide32-s7" / "policy.pt"),
-    "3v-reg96k-s7": str(ROOT / "runs" / "offline" / "d3-pool4-96k-s7" / "policy.pt"),
-    "3v-nodrop-s7": str(ROOT / "runs" / "offline" / "d3-nodrop-s7" / "policy.pt"),
+    # Session 33: the regressions of seeds 7, 8 and 9 and three levers on seed 7's: 32 conv
+    # channels instead of 16 (`offline.py --encoder-channels 32`), 96000 regression steps
+    # instead of 48000, and no view dropout in the regression (`--view-dropout 0`); all six on
+    # the pool rebuilt in session 34 (`lever_lane.sh`), their files committed as each finished
+    # (block 180000's `3v-reg-s7|8` lines came from the lost pool's regressions).
+    **{
+        name: str(LEVERS33 / f"{stem}_policy.pt")
+        for name, stem in (
+            *((f"3v-reg-s{seed}", f"d3-pool4-48k-s{seed}") for seed in (7, 8, 9)),
+            ("3v-wide32-s7", "d3-wide32-s7"),
+            ("3v-reg96k-s7", "d3-pool4-96k-s7"),
+            ("3v-nodrop-s7", "d3-nodrop-s7"),
+        )
+    },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
     # keypoints, nothing rendered) regressed on the same four-run pool as the 3-view seeds:
     # are the near-target tasks lost to what the cameras show, or to acting without lookahead?
