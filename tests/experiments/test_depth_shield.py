@@ -277,16 +277,22 @@ def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
     assert not shadow.hidden_points(behind[None])[0]
 
 
-def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
-    from clamgen.experiments.depth_shield import ArmShadow
-
+def _blocked_one_view(seed: int):
+    """A blocked task seen by one camera: its first observation, the arm's joints (float64) and
+    an empty `DepthOccupancy` for that camera."""
     env = ReachEnv(
         num_obstacles=2, task_family="blocked", obs_mode="both", num_views=1, image_size=SIZE
     )
-    obs, _ = env.reset(seed=TEST_SEEDS.start + 1)
+    obs, _ = env.reset(seed=seed)
     env.close()
     joints = np.asarray(obs["observation"], np.float64)[:6]
-    occupancy = DepthOccupancy(1, SIZE, SIZE)
+    return obs, joints, DepthOccupancy(1, SIZE, SIZE)
+
+
+def test_shadow_behind_surfaces_hides_the_far_side_of_seen_obstacles():
+    from clamgen.experiments.depth_shield import ArmShadow
+
+    obs, joints, occupancy = _blocked_one_view(seed=TEST_SEEDS.start + 1)
     surface = occupancy.update(obs)
     assert len(surface) > 0
     eye = occupancy.origins[0].astype(np.float64)
@@ -390,13 +396,7 @@ def test_depth_step_clearance_equals_the_exact_check_along_the_step():
     from clamgen.experiments.depth_shield import HIDDEN_CLEARANCE_M, ArmShadow, DepthClearance
     from clamgen.experiments.shield import step_clearance
 
-    env = ReachEnv(
-        num_obstacles=2, task_family="blocked", obs_mode="both", num_views=1, image_size=SIZE
-    )
-    obs, _ = env.reset(seed=TEST_SEEDS.start + 2)
-    env.close()
-    joints = np.asarray(obs["observation"], np.float64)[:6]
-    occupancy = DepthOccupancy(1, SIZE, SIZE)
+    obs, joints, occupancy = _blocked_one_view(seed=TEST_SEEDS.start + 2)
     shadow = ArmShadow(occupancy, near_m=0.05, behind_surfaces=True)
     checker = DepthClearance(occupancy.arm, margin_m=0.02, shadow=shadow)
     checker.points = occupancy.update(obs)
