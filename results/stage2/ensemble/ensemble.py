@@ -206,6 +206,8 @@ STUDENTS = {
             ("3v-wide32-s7", "d3-wide32-s7"),
             ("3v-reg96k-s7", "d3-pool4-96k-s7"),
             ("3v-nodrop-s7", "d3-nodrop-s7"),
+            # Session 35: eight runs' data (the four and four more DAgger runs), 96000 steps.
+            ("3v-pool8-s7", "d3-pool8-96k-s7"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -300,6 +302,7 @@ COMPARED = {
         name: ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9")
         for name in ("3v-wide32-s7", "3v-reg96k-s7", "3v-nodrop-s7")
     },
+    "3v-pool8-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9", "3v-reg96k-s7"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 

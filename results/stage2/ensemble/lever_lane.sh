@@ -6,7 +6,8 @@
 # two lanes share it. A finished regression (policy.pt) is skipped; an unfinished one resumes
 # from its last 1000 updates.
 #   results/stage2/ensemble/lever_lane.sh NAME...
-#   NAME: reg-sS (the shipped recipe's regression, seed S), wide32-s7, reg96k-s7, nodrop-s7
+#   NAME: reg-sS (the shipped recipe's regression, seed S), wide32-s7, reg96k-s7, nodrop-s7,
+#         pool8-s7 (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -19,7 +20,10 @@ for NAME in "$@"; do
     wide32-s7) SEED=7; OUT=runs/offline/d3-wide32-s7; ARGS="--updates 48000 --encoder-channels 32" ;;
     reg96k-s7) SEED=7; OUT=runs/offline/d3-pool4-96k-s7; ARGS="--updates 96000" ;;
     nodrop-s7) SEED=7; OUT=runs/offline/d3-nodrop-s7; ARGS="--updates 48000 --view-dropout 0" ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7)" >&2; exit 2 ;;
+    pool8-s7) SEED=7; OUT=runs/offline/d3-pool8-96k-s7; ARGS="--updates 96000"
+      POOL="$POOL runs/reseed/d3-seed5 runs/reseed/d3-seed6 runs/reseed/d3-seed7 runs/reseed/d3-seed8"
+      CACHE=runs/pool-cache/d3-pool8 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-s7)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \

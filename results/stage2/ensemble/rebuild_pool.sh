@@ -3,7 +3,8 @@
 # from their committed command (../shield/reseed/d3-seedS/config.json; README, "Seeds of the
 # shipped 3-view recipe"). A rerun resumes a run from its last iteration; a finished run
 # (summary.json) is skipped.
-#   results/stage2/ensemble/rebuild_pool.sh SEED...    (the runs behind the pool: 1 2 3 4)
+#   results/stage2/ensemble/rebuild_pool.sh SEED...    (the runs behind the pool: 1 2 3 4; 5-8 for
+#   session 35's eight-run pool)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
