@@ -7,14 +7,15 @@
 # from its last 1000 updates.
 #   results/stage2/ensemble/lever_lane.sh NAME...
 #   NAME: reg-sS (the shipped recipe's regression, seed S), wide32-s7, reg96k-s7, nodrop-s7,
-#         pool8-s7 (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps)
+#         pool8-s7 (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps),
+#         pool7-s7 (its fallback if the eight runs' cache is too slow: seeds 1..7)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
 SRC=runs/reseed/d3-seed1
-POOL="runs/reseed/d3-seed2 runs/reseed/d3-seed3 runs/reseed/d3-seed4"
-CACHE=runs/pool-cache/d3-pool4-48k
+POOL4="runs/reseed/d3-seed2 runs/reseed/d3-seed3 runs/reseed/d3-seed4"
 for NAME in "$@"; do
+  POOL=$POOL4; CACHE=runs/pool-cache/d3-pool4-48k
   case "$NAME" in
     reg-s*) SEED=${NAME#reg-s}; OUT=runs/offline/d3-pool4-48k-s$SEED; ARGS="--updates 48000" ;;
     wide32-s7) SEED=7; OUT=runs/offline/d3-wide32-s7; ARGS="--updates 48000 --encoder-channels 32" ;;
@@ -23,7 +24,10 @@ for NAME in "$@"; do
     pool8-s7) SEED=7; OUT=runs/offline/d3-pool8-96k-s7; ARGS="--updates 96000"
       POOL="$POOL runs/reseed/d3-seed5 runs/reseed/d3-seed6 runs/reseed/d3-seed7 runs/reseed/d3-seed8"
       CACHE=runs/pool-cache/d3-pool8 ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-s7)" >&2; exit 2 ;;
+    pool7-s7) SEED=7; OUT=runs/offline/d3-pool7-96k-s7; ARGS="--updates 96000"
+      POOL="$POOL runs/reseed/d3-seed5 runs/reseed/d3-seed6 runs/reseed/d3-seed7"
+      CACHE=runs/pool-cache/d3-pool7 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-s7, pool7-s7)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
