@@ -21,12 +21,9 @@ for NAME in "$@"; do
     wide32-s7) SEED=7; OUT=runs/offline/d3-wide32-s7; ARGS="--updates 48000 --encoder-channels 32" ;;
     reg96k-s7) SEED=7; OUT=runs/offline/d3-pool4-96k-s7; ARGS="--updates 96000" ;;
     nodrop-s7) SEED=7; OUT=runs/offline/d3-nodrop-s7; ARGS="--updates 48000 --view-dropout 0" ;;
-    pool8-s7) SEED=7; OUT=runs/offline/d3-pool8-96k-s7; ARGS="--updates 96000"
-      POOL="$POOL runs/reseed/d3-seed5 runs/reseed/d3-seed6 runs/reseed/d3-seed7 runs/reseed/d3-seed8"
-      CACHE=runs/pool-cache/d3-pool8 ;;
-    pool7-s7) SEED=7; OUT=runs/offline/d3-pool7-96k-s7; ARGS="--updates 96000"
-      POOL="$POOL runs/reseed/d3-seed5 runs/reseed/d3-seed6 runs/reseed/d3-seed7"
-      CACHE=runs/pool-cache/d3-pool7 ;;
+    pool[78]-s7) N=${NAME:4:1}; SEED=7; OUT=runs/offline/d3-pool$N-96k-s7; ARGS="--updates 96000"
+      for S in $(seq 5 $N); do POOL="$POOL runs/reseed/d3-seed$S"; done
+      CACHE=runs/pool-cache/d3-pool$N ;;
     *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-s7, pool7-s7)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
