@@ -208,6 +208,7 @@ STUDENTS = {
             ("3v-nodrop-s7", "d3-nodrop-s7"),
             # Session 35: eight runs' data (the four and four more DAgger runs), 96000 steps.
             ("3v-pool8-s7", "d3-pool8-96k-s7"),
+            ("3v-pool8-s8", "d3-pool8-96k-s8"),  # session 36: a second seed beside it
             ("3v-pool7-s7", "d3-pool7-96k-s7"),  # its fallback (seven runs), if too slow
         )
     },
@@ -305,7 +306,7 @@ COMPARED = {
     },
     **{
         name: ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9", "3v-reg96k-s7")
-        for name in ("3v-pool8-s7", "3v-pool7-s7")
+        for name in ("3v-pool8-s7", "3v-pool8-s8", "3v-pool7-s7")
     },
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""

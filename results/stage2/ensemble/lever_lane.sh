@@ -7,8 +7,9 @@
 # from its last 1000 updates.
 #   results/stage2/ensemble/lever_lane.sh NAME...
 #   NAME: reg-sS (the shipped recipe's regression, seed S), wide32-s7, reg96k-s7, nodrop-s7,
-#         pool8-s7 (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps),
-#         pool7-s7 (its fallback if the eight runs' cache is too slow: seeds 1..7)
+#         pool8-sS (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps; seed 7
+#         first, seed 8 beside it in session 36), pool7-sS (the fallback if the eight runs'
+#         cache is too slow: seeds 1..7)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -21,10 +22,11 @@ for NAME in "$@"; do
     wide32-s7) SEED=7; OUT=runs/offline/d3-wide32-s7; ARGS="--updates 48000 --encoder-channels 32" ;;
     reg96k-s7) SEED=7; OUT=runs/offline/d3-pool4-96k-s7; ARGS="--updates 96000" ;;
     nodrop-s7) SEED=7; OUT=runs/offline/d3-nodrop-s7; ARGS="--updates 48000 --view-dropout 0" ;;
-    pool[78]-s7) N=${NAME:4:1}; SEED=7; OUT=runs/offline/d3-pool$N-96k-s7; ARGS="--updates 96000"
+    pool[78]-s[0-9]*) N=${NAME:4:1}; SEED=${NAME#pool?-s}; OUT=runs/offline/d3-pool$N-96k-s$SEED
+      ARGS="--updates 96000"
       for S in $(seq 5 $N); do POOL="$POOL runs/reseed/d3-seed$S"; done
       CACHE=runs/pool-cache/d3-pool$N ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-s7, pool7-s7)" >&2; exit 2 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
