@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.pooled import MANIFEST_NAME, data_files, load_pooled
+from clamgen.experiments.pooled import MANIFEST_NAME, ReadAhead, data_files, load_pooled
 
 
 def _write_run(run, sizes, views=3, seed=0):
@@ -119,3 +119,32 @@ def test_relabelled_cached_pool_equals_the_relabelled_pool_in_memory(runs, tmp_p
     np.testing.assert_array_equal(
         load_pooled(sources, views=2, cache=cache)["label"], load_pooled(sources, views=2)["label"]
     )
+
+
+def test_cached_image_rows_of_a_page_or_more_are_read_ahead_row_by_row(tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    rng = np.random.default_rng(3)
+    images = rng.integers(0, 256, (9, 3, 4, 20, 20), dtype=np.uint8)  # 4800-byte rows
+    label = rng.normal(size=(9, 6)).astype(np.float32)
+    ckpt.save_npz(run / "data" / "iteration0.npz", {"images": images, "label": label})
+    pool = load_pooled([(run, None)], views=3, cache=tmp_path / "cache")
+    assert isinstance(pool["images"], ReadAhead)
+    assert isinstance(pool["label"], np.memmap)  # small rows: the map as it is
+
+    asked = []
+    monkeypatch.setattr(os, "posix_fadvise", lambda fd, start, size, advice: asked.append(start))
+    index = np.array([7, 2, 7, -1])
+    np.testing.assert_array_equal(pool["images"][index], images[index])
+    offset = pool["images"].array.offset
+    assert asked == [offset + 2 * 4800, offset + 7 * 4800, offset + 8 * 4800]  # each row once
+    asked.clear()
+    np.testing.assert_array_equal(pool["images"][[1, 4]], images[[1, 4]])
+    assert len(asked) == 2
+    asked.clear()
+    np.testing.assert_array_equal(pool["images"][3:6], images[3:6])
+    np.testing.assert_array_equal(pool["images"][5], images[5])
+    assert asked == []  # slices and single rows read the map directly
+    np.testing.assert_array_equal(np.asarray(pool["images"]), images)
+    assert pool["images"].shape == images.shape and len(pool["images"]) == 9
+    with pytest.raises(TypeError):
+        pool["images"][0] = 0  # read-only

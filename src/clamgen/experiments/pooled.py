@@ -6,13 +6,17 @@ A distillation run writes its (student input, teacher label) pairs as
 3-view runs are 290k states, 14.4 GB of images, so two such jobs do not fit beside each other
 on a 24 GB machine. With a cache directory the pool is written once as uncompressed `.npy`
 files and memory-mapped read-only: every process that maps the same cache shares one copy in
-the page cache, and the arrays hold the same values as the in-memory pool.
+the page cache, and the arrays hold the same values as the in-memory pool. A pool larger than
+memory is read from disk as it is sampled; its image rows are asked for ahead of each gather
+(`ReadAhead`), all of a batch's at once.
 """
 
 from __future__ import annotations
 
 import fcntl
 import json
+import os
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,6 +28,7 @@ MANIFEST_NAME = "manifest.json"
 LOCK_NAME = "lock"
 
 RELABEL_CHUNK = 4096  # states read from a memory-mapped pool per relabelling call
+READ_AHEAD_ROW_BYTES = 4096  # cached arrays with rows of at least a page are read row by row
 Relabel = Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
@@ -199,7 +204,44 @@ def _mapped(per_run: list[tuple[Path, list[Path]]], views: int, cache: Path) -> 
             text = json.dumps(manifest, indent=1)
             ckpt.atomic_write(manifest_path, lambda tmp: tmp.write_text(text))
             print(f"pool cached in {cache}")
-        return {key: np.load(cache / f"{key}.npy", mmap_mode="r") for key in manifest["keys"]}
+        return {key: _open_mapped(cache / f"{key}.npy") for key in manifest["keys"]}
+
+
+def _open_mapped(path: Path) -> np.ndarray | ReadAhead:
+    array = np.load(path, mmap_mode="r")
+    return ReadAhead(path, array) if array[:1].nbytes >= READ_AHEAD_ROW_BYTES else array
+
+
+class ReadAhead:
+    """A memory-mapped array (rows of a page or more) whose gathers first ask the kernel for
+    exactly the rows they read, all of them at once (`posix_fadvise(WILLNEED)`), then copy.
+
+    Gathering rows of a pool larger than memory by page faults alone reads them one fault at a
+    time, each with the kernel's read-around of the pages beside it: an eight-run 3-view pool
+    (28 GB of 48 KB image rows on a 24 GB machine) regressed at 12.7 updates a second reading
+    450 MB/s, most of it rows no batch asked for. Indexing with an integer array reads ahead;
+    anything else (slices, single rows) reads the map as it is. Read-only, like the map."""
+
+    def __init__(self, path: Path, array: np.memmap) -> None:
+        self.array = array
+        self.shape, self.dtype, self.ndim = array.shape, array.dtype, array.ndim
+        self._row_bytes = array[:1].nbytes
+        self._fd = os.open(path, os.O_RDONLY)
+        weakref.finalize(self, os.close, self._fd)
+
+    def __len__(self) -> int:
+        return len(self.array)
+
+    def __getitem__(self, item) -> np.ndarray:
+        index = item if isinstance(item, np.ndarray | list) else None
+        if index is not None and np.asarray(index).dtype.kind in "iu":
+            for row in np.unique(np.asarray(index) % len(self.array)):
+                start = self.array.offset + int(row) * self._row_bytes
+                os.posix_fadvise(self._fd, start, self._row_bytes, os.POSIX_FADV_WILLNEED)
+        return self.array[item]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return np.asarray(self.array, dtype)
 
 
 def apply_row(scene, observation: np.ndarray, goal: np.ndarray, poses: np.ndarray) -> None:
