@@ -38,6 +38,7 @@ bench: install
 	$(PY) benchmarks/env_steps.py
 	$(PY) benchmarks/render.py
 	$(PY) benchmarks/sb3_her.py
+	$(PY) benchmarks/pool_gather.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis
