@@ -121,6 +121,7 @@ def test_relabelled_cached_pool_equals_the_relabelled_pool_in_memory(runs, tmp_p
     )
 
 
+@pytest.mark.skipif(not hasattr(os, "posix_fadvise"), reason="read-ahead needs posix_fadvise")
 def test_cached_image_rows_of_a_page_or_more_are_read_ahead_row_by_row(tmp_path, monkeypatch):
     run = tmp_path / "run"
     rng = np.random.default_rng(3)

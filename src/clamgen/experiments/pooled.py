@@ -209,7 +209,8 @@ def _mapped(per_run: list[tuple[Path, list[Path]]], views: int, cache: Path) -> 
 
 def _open_mapped(path: Path) -> np.ndarray | ReadAhead:
     array = np.load(path, mmap_mode="r")
-    return ReadAhead(path, array) if array[:1].nbytes >= READ_AHEAD_ROW_BYTES else array
+    large = array[:1].nbytes >= READ_AHEAD_ROW_BYTES
+    return ReadAhead(path, array) if large and hasattr(os, "posix_fadvise") else array  # Linux
 
 
 class ReadAhead:
@@ -233,9 +234,9 @@ class ReadAhead:
         return len(self.array)
 
     def __getitem__(self, item) -> np.ndarray:
-        index = item if isinstance(item, np.ndarray | list) else None
-        if index is not None and np.asarray(index).dtype.kind in "iu":
-            for row in np.unique(np.asarray(index) % len(self.array)):
+        rows = np.asarray(item) if isinstance(item, np.ndarray | list) else None
+        if rows is not None and rows.dtype.kind in "iu":
+            for row in np.unique(rows % len(self.array)):
                 start = self.array.offset + int(row) * self._row_bytes
                 os.posix_fadvise(self._fd, start, self._row_bytes, os.POSIX_FADV_WILLNEED)
         return self.array[item]
