@@ -77,19 +77,19 @@ def main() -> None:
                 start = time.perf_counter()
                 array[index]
                 seconds[name].append(time.perf_counter() - start)
-    median = {name: float(np.median(times)) for name, times in seconds.items()}
-    ratio = median["page faults"] / median["ReadAhead"]
-    print(f"cache {rows} rows ({rows * np.prod(ROW_SHAPE) / 2**30:.2f} GiB), evicted each time")
-    for name, value in median.items():
-        ms = value * 1000
+    median_ms = {name: float(np.median(times)) * 1000 for name, times in seconds.items()}
+    ratio = median_ms["page faults"] / median_ms["ReadAhead"]
+    gib = rows * np.prod(ROW_SHAPE) / 2**30
+    print(f"cache {rows} rows ({gib:.2f} GiB), evicted each time")
+    for name, ms in median_ms.items():
         print(f"{name:12s} {ms:7.1f} ms per {BATCH}-row gather (median of {args.gathers})")
     print(f"ReadAhead {ratio:.1f}x faster")
     row = {
-        "cache_gib": round(rows * np.prod(ROW_SHAPE) / 2**30, 2),
+        "cache_gib": round(gib, 2),
         "batch_rows": BATCH,
         "gathers": args.gathers,
-        "page_faults_ms": round(median["page faults"] * 1000, 2),
-        "read_ahead_ms": round(median["ReadAhead"] * 1000, 2),
+        "page_faults_ms": round(median_ms["page faults"], 2),
+        "read_ahead_ms": round(median_ms["ReadAhead"], 2),
         "ratio": round(ratio, 2),
     }
     print(f"wrote {write_csv('pool_gather', [row])}")
