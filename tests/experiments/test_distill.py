@@ -276,6 +276,20 @@ def test_a_lookahead_teacher_labels_with_its_plans_and_reports_their_cost(
         DistillSettings(lookahead_horizon=0)
     with pytest.raises(ValueError, match=r"distill\.lookahead_margin_m"):
         DistillSettings(lookahead_margin_m=-0.01)
+    with pytest.raises(ValueError, match=r"distill\.lookahead_least_offset"):
+        DistillSettings(lookahead_least_offset=True, lookahead_prefer_student=True)
+
+
+def test_the_least_offset_setting_reaches_the_teacher(tmp_path, base_policy, teacher):
+    for least in (False, True):
+        config = distill_config(
+            tmp_path / str(least),
+            base_policy,
+            teacher,
+            lookahead_candidates=3,
+            lookahead_least_offset=least,
+        )
+        assert Distiller(config).lookahead.least_offset == least
 
 
 def test_a_finished_run_is_polished_with_a_decaying_learning_rate_and_keeps_the_best(

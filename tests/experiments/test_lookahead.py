@@ -159,6 +159,41 @@ def test_a_search_keeps_the_clean_plan_nearest_to_the_preferred_action():
         np.testing.assert_allclose(label, np.clip(nearest, -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP))
 
 
+def test_least_offset_keeps_the_clean_plan_that_deviates_least():
+    env = blocked_env()
+    obs, _ = env.reset(seed=0)
+    searches = {}
+    labels = {}
+    for least in (False, True):
+        teacher = LookaheadTeacher(
+            BlindAgent(), num_obstacles=2, candidates=16, horizon=40, seed=2, least_offset=least
+        )
+        rollout = teacher.rollout
+
+        def recording(state, plans, margin_m=0.0, rollout=rollout, least=least):
+            outcomes = rollout(state, plans, margin_m)
+            if len(plans) > 1:
+                searches[least] = (plans.copy(), outcomes)
+            return outcomes
+
+        teacher.rollout = recording
+        labels[least], _, clean = teacher.act(env.get_state(), obs, teacher.new_plan(), False)
+        assert clean
+    plans, outcomes = searches[True]
+    clean = [i for i, o in enumerate(outcomes) if o.clean]
+    assert len(clean) > 1 and not outcomes[0].clean  # the blind agent alone collides
+    least = min(clean, key=lambda i: np.linalg.norm(plans[i]))
+    earliest = min(clean, key=lambda i: outcomes[i].arrived_after)
+    assert least != earliest  # (this search tells the two rules apart)
+    mean = BlindAgent().mean_action({k: v[None] for k, v in obs.items()})[0]
+    expected = np.clip(mean + plans[least, 0], -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
+    np.testing.assert_allclose(labels[True], expected, rtol=1e-6)
+    # The same search (same seed, same state) under the default rule keeps the earliest.
+    np.testing.assert_array_equal(searches[False][0], plans)
+    default = np.clip(mean + plans[earliest, 0], -PRE_SQUASH_CLIP, PRE_SQUASH_CLIP)
+    np.testing.assert_allclose(labels[False], default, rtol=1e-6)
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [{"candidates": 0}, {"horizon": 0}, {"segments": 0}, {"noise": -1.0}, {"margin_m": -0.01}],

@@ -137,6 +137,10 @@ class DistillSettings:
     """The lookahead searches among one fixed library of perturbed plans (drawn once from the
     seed) instead of fresh draws at every search, so that nearby states get consistent labels
     (`clamgen.experiments.lookahead`). False: fresh draws, as every run before it was added."""
+    lookahead_least_offset: bool = False
+    """The lookahead's searches keep the clean plan whose offsets are smallest (the least
+    deviation from the teacher's own actions) instead of the earliest arrival
+    (`clamgen.experiments.lookahead`). Not with `lookahead_prefer_student`."""
     near_target_weight: float = 1.0
     """Regression batches draw the states whose target lies within `near_target_m` of an
     obstacle's surface this many times as often as the others (beyond the paper; 1: uniform,
@@ -165,6 +169,11 @@ class DistillSettings:
         if not 0 <= self.lookahead_margin_m < float("inf"):
             raise ValueError(
                 f"distill.lookahead_margin_m must be a number >= 0, got {self.lookahead_margin_m}"
+            )
+        if self.lookahead_least_offset and self.lookahead_prefer_student:
+            raise ValueError(
+                "distill.lookahead_least_offset and distill.lookahead_prefer_student are two "
+                "ways to choose among clean plans: one"
             )
         if not 0 <= self.teacher_share <= 1:
             raise ValueError(f"distill.teacher_share must be in [0, 1], got {self.teacher_share}")
@@ -290,6 +299,7 @@ class Distiller:
                 seed=settings.seed,
                 margin_m=settings.lookahead_margin_m,
                 fixed_offsets=settings.lookahead_fixed_offsets,
+                least_offset=settings.lookahead_least_offset,
             )
             if settings.lookahead_candidates
             else None

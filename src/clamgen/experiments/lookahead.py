@@ -29,6 +29,13 @@ the label then keeps the side the student already takes instead of the side a ra
 found first, so that its labels at nearby states do not pull both ways (DAgger with a
 multimodal expert).
 
+With `least_offset`, a search keeps the clean arrival whose offsets deviate least from the
+residual's own actions (the smallest norm over the plan; no offset at all when the residual
+alone arrives) instead of the earliest arrival. An earliest arrival is the argmax of a score
+that nearby states reorder by a step or two, so their labels jump between candidates with
+unrelated offsets; the least deviation is a fixed order over the library's zero-centred plans
+and labels near the residual's own action wherever a small bend suffices.
+
 With a clearance `margin_m` > 0 the rollouts count any approach closer than that to an
 obstacle or the table as a collision (the planning envs' `collision_margin_m`), so the plans it
 keeps pass obstacles with room to spare; where no candidate keeps the clearance (a goal close
@@ -105,6 +112,9 @@ class LookaheadTeacher:
         seed: seed of the offsets.
         margin_m: clearance (m) the plans keep from obstacles and the table where they can;
             0: true contact only.
+        fixed_offsets: search one library of offsets drawn once instead of fresh draws.
+        least_offset: a search keeps the clean arrival with the smallest offsets instead of
+            the earliest (a student's preferred action, where `act` is given one, comes first).
     """
 
     def __init__(
@@ -118,6 +128,7 @@ class LookaheadTeacher:
         seed: int = 0,
         margin_m: float = MARGIN_M,
         fixed_offsets: bool = False,
+        least_offset: bool = False,
     ) -> None:
         if candidates < 1 or horizon < 1 or segments < 1 or not noise >= 0:
             raise ValueError(
@@ -132,6 +143,7 @@ class LookaheadTeacher:
         self.noise = noise
         self.segments = segments
         self.margin_m = float(margin_m)
+        self.least_offset = least_offset
         self.rng = np.random.default_rng(seed)
         # The library of offsets every search uses with `fixed_offsets` (None: drawn anew).
         self.offsets = self._draw_offsets() if fixed_offsets else None
@@ -210,6 +222,9 @@ class LookaheadTeacher:
         clean = [i for i, o in enumerate(outcomes) if o.clean]
         if wanted is not None and clean:
             best = min(clean, key=lambda i: float(np.linalg.norm(plans[i, 0] - wanted)))
+            return plans[best], outcomes[best]
+        if self.least_offset and clean:
+            best = min(clean, key=lambda i: float(np.linalg.norm(plans[i])))
             return plans[best], outcomes[best]
         best = int(np.argmax([o.score() for o in outcomes]))
         if outcomes[best].score() <= outcome.score():
