@@ -210,6 +210,9 @@ STUDENTS = {
             ("3v-pool8-s7", "d3-pool8-96k-s7"),
             ("3v-pool8-s8", "d3-pool8-96k-s8"),  # session 36: a second seed beside it
             ("3v-pool7-s7", "d3-pool7-96k-s7"),  # its fallback (seven runs), if too slow
+            # Session 37: four DAgger runs whose lookahead keeps the clean plan of least
+            # deviation (`least_pool.sh`), the shipped recipe's regression otherwise.
+            ("3v-least4-s7", "d3-least4-48k-s7"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -308,6 +311,7 @@ COMPARED = {
         name: ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9", "3v-reg96k-s7")
         for name in ("3v-pool8-s7", "3v-pool8-s8", "3v-pool7-s7")
     },
+    "3v-least4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 

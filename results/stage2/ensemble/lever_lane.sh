@@ -9,14 +9,14 @@
 #   NAME: reg-sS (the shipped recipe's regression, seed S), wide32-s7, reg96k-s7, nodrop-s7,
 #         pool8-sS (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps; seed 7
 #         first, seed 8 beside it in session 36), pool7-sS (the fallback if the eight runs'
-#         cache is too slow: seeds 1..7)
+#         cache is too slow: seeds 1..7), least4-sS (session 37: the four DAgger runs of
+#         least_pool.sh, whose lookahead keeps the clean plan of least deviation; 48000 steps)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
-SRC=runs/reseed/d3-seed1
 POOL4="runs/reseed/d3-seed2 runs/reseed/d3-seed3 runs/reseed/d3-seed4"
 for NAME in "$@"; do
-  POOL=$POOL4; CACHE=runs/pool-cache/d3-pool4-48k
+  SRC=runs/reseed/d3-seed1; POOL=$POOL4; CACHE=runs/pool-cache/d3-pool4-48k
   case "$NAME" in
     reg-s*) SEED=${NAME#reg-s}; OUT=runs/offline/d3-pool4-48k-s$SEED; ARGS="--updates 48000" ;;
     wide32-s7) SEED=7; OUT=runs/offline/d3-wide32-s7; ARGS="--updates 48000 --encoder-channels 32" ;;
@@ -26,7 +26,11 @@ for NAME in "$@"; do
       ARGS="--updates 96000"
       for S in $(seq 5 $N); do POOL="$POOL runs/reseed/d3-seed$S"; done
       CACHE=runs/pool-cache/d3-pool$N ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS)" >&2; exit 2 ;;
+    least4-s[0-9]*) SEED=${NAME#least4-s}; OUT=runs/offline/d3-least4-48k-s$SEED
+      ARGS="--updates 48000"; SRC=runs/reseed/d3-least-seed1
+      POOL="runs/reseed/d3-least-seed2 runs/reseed/d3-least-seed3 runs/reseed/d3-least-seed4"
+      CACHE=runs/pool-cache/d3-least4 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
