@@ -34,7 +34,9 @@ residual's own actions (the smallest norm over the plan; no offset at all when t
 alone arrives) instead of the earliest arrival. An earliest arrival is the argmax of a score
 that nearby states reorder by a step or two, so their labels jump between candidates with
 unrelated offsets; the least deviation is a fixed order over the library's zero-centred plans
-and labels near the residual's own action wherever a small bend suffices.
+and labels near the residual's own action wherever a small bend suffices. (Privileged students
+of it did better, but their regression losses were no lower:
+`results/stage2/distill/README.md`, "A teacher that bends least".)
 
 With a clearance `margin_m` > 0 the rollouts count any approach closer than that to an
 obstacle or the table as a collision (the planning envs' `collision_margin_m`), so the plans it

@@ -41,8 +41,8 @@ def bf16_unit() -> str:
 
 
 def describe(cpuinfo: Path = CPUINFO) -> str:
-    """E.g. "x86_64 AVX2, no bf16 in hardware" or "x86_64 AVX512, bf16 in hardware (AMX),
-    Intel(R) Xeon(R) Platinum 8481C"; the model name where Linux gives one."""
+    """E.g. "x86_64 AVX2, no bf16 in hardware" or "x86_64 AVX512, bf16 in hardware (AVX-512
+    BF16, no AMX), AMD EPYC"; the model name where Linux gives one."""
     if native_bf16("cpu"):
         unit = bf16_unit()
         bf16 = f"bf16 in hardware ({unit})" if unit else "bf16 in hardware"
