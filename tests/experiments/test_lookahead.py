@@ -29,6 +29,22 @@ def blocked_env() -> ReachEnv:
     return ReachEnv(num_obstacles=2, task_family="blocked", include_obstacle_state=True)
 
 
+def record_searches(teacher: LookaheadTeacher) -> list:
+    """The (plans, outcomes) of each of `teacher`'s searches from now on (rollouts of more
+    than one plan), in order."""
+    searches = []
+    rollout = teacher.rollout
+
+    def recording(state, plans, margin_m=0.0):
+        outcomes = rollout(state, plans, margin_m)
+        if len(plans) > 1:
+            searches.append((plans.copy(), outcomes))
+        return outcomes
+
+    teacher.rollout = recording
+    return searches
+
+
 def test_a_rollout_without_offsets_is_the_episode_the_agent_would_run():
     agent = BlindAgent()
     teacher = LookaheadTeacher(agent, num_obstacles=2, horizon=100)
@@ -119,36 +135,20 @@ def test_fixed_offsets_search_the_same_library_at_every_state(fixed):
     teacher = LookaheadTeacher(
         BlindAgent(), num_obstacles=2, candidates=4, horizon=10, seed=1, fixed_offsets=fixed
     )
-    searched = []
-    rollout = teacher.rollout
-
-    def recording(state, plans, margin_m=0.0):
-        if len(plans) > 1:
-            searched.append(plans[1:].copy())
-        return rollout(state, plans, margin_m)
-
-    teacher.rollout = recording
+    searches = record_searches(teacher)
     zero = teacher.new_plan()
     for _ in range(2):  # the same state, searched twice from the same (empty) plan
         teacher.act(env.get_state(), obs, zero, known_clean=False)
-    assert len(searched) == 2
-    assert np.array_equal(searched[0], searched[1]) == fixed
+    assert len(searches) == 2
+    (first, _), (second, _) = searches  # (the perturbed plans follow the zero plan)
+    assert np.array_equal(first[1:], second[1:]) == fixed
 
 
 def test_a_search_keeps_the_clean_plan_nearest_to_the_preferred_action():
     env = blocked_env()
     obs, _ = env.reset(seed=0)
     teacher = LookaheadTeacher(BlindAgent(), num_obstacles=2, candidates=16, horizon=40, seed=2)
-    searches = []
-    rollout = teacher.rollout
-
-    def recording(state, plans, margin_m=0.0):
-        outcomes = rollout(state, plans, margin_m)
-        if len(plans) > 1:
-            searches.append((plans.copy(), outcomes))
-        return outcomes
-
-    teacher.rollout = recording
+    searches = record_searches(teacher)
     mean = BlindAgent().mean_action({k: v[None] for k, v in obs.items()})[0]
     for prefer in (np.full(6, 2.0), np.full(6, -2.0)):
         label, _, clean = teacher.act(env.get_state(), obs, teacher.new_plan(), False, prefer)
@@ -168,17 +168,10 @@ def test_least_offset_keeps_the_clean_plan_that_deviates_least():
         teacher = LookaheadTeacher(
             BlindAgent(), num_obstacles=2, candidates=16, horizon=40, seed=2, least_offset=least
         )
-        rollout = teacher.rollout
-
-        def recording(state, plans, margin_m=0.0, rollout=rollout, least=least):
-            outcomes = rollout(state, plans, margin_m)
-            if len(plans) > 1:
-                searches[least] = (plans.copy(), outcomes)
-            return outcomes
-
-        teacher.rollout = recording
+        recorded = record_searches(teacher)
         labels[least], _, clean = teacher.act(env.get_state(), obs, teacher.new_plan(), False)
-        assert clean
+        assert clean and len(recorded) == 1
+        searches[least] = recorded[0]
     plans, outcomes = searches[True]
     clean = [i for i, o in enumerate(outcomes) if o.clean]
     assert len(clean) > 1 and not outcomes[0].clean  # the blind agent alone collides

@@ -6,7 +6,7 @@ import platform
 
 import torch
 
-from clamgen.agents.encoders import native_bf16
+from clamgen.agents.encoders import cpu_bf16_unit, native_bf16
 from clamgen.experiments import machine
 
 CPUINFO = """processor\t: 0
@@ -35,9 +35,9 @@ def test_describe_names_the_architecture_bf16_unit_and_model(tmp_path):
     assert text.startswith(f"{platform.machine()} {torch.backends.cpu.get_cpu_capability()}, ")
     assert text.endswith(", AMD EPYC 9R14")
     if native_bf16("cpu"):
-        assert f"bf16 in hardware ({machine.bf16_unit()})" in text
-        assert machine.bf16_unit() in ("AMX", "AVX-512 BF16, no AMX")
+        assert f"bf16 in hardware ({cpu_bf16_unit()})" in text
+        assert cpu_bf16_unit() in ("AMX", "AVX-512 BF16, no AMX")
     else:
-        assert "no bf16 in hardware" in text
+        assert "no bf16 in hardware" in text and cpu_bf16_unit() == ""
     # Without a model name (not Linux), the description ends with the bf16 part.
     assert machine.describe(tmp_path / "missing") == text.removesuffix(", AMD EPYC 9R14")

@@ -41,6 +41,7 @@ __all__ = [
     "SpatialSoftmax",
     "bf16_enabled",
     "conv_output_size",
+    "cpu_bf16_unit",
     "fuse",
     "native_bf16",
     "to_unit_float",
@@ -64,9 +65,18 @@ def native_bf16(device_type: str) -> bool:
     if device_type == "cuda":
         return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
     if device_type == "cpu":
-        checks = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
-        return any(getattr(torch.cpu, name, lambda: False)() for name in checks)
+        return bool(cpu_bf16_unit())
     return False
+
+
+def cpu_bf16_unit() -> str:
+    """Which unit of this CPU computes bf16: "AMX" (matrix tiles), "AVX-512 BF16, no AMX", or
+    "" where neither does (:func:`native_bf16` is False there)."""
+    if getattr(torch.cpu, "_is_amx_tile_supported", lambda: False)():
+        return "AMX"
+    if getattr(torch.cpu, "_is_avx512_bf16_supported", lambda: False)():
+        return "AVX-512 BF16, no AMX"
+    return ""
 
 
 def bf16_enabled(device_type: str) -> bool:

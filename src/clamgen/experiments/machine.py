@@ -11,7 +11,7 @@ from pathlib import Path
 
 import torch
 
-from clamgen.agents.encoders import EMULATED_BF16_ENV, bf16_enabled, native_bf16
+from clamgen.agents.encoders import EMULATED_BF16_ENV, bf16_enabled, cpu_bf16_unit, native_bf16
 
 CPUINFO = Path("/proc/cpuinfo")
 """Where Linux names the CPU model (elsewhere the description leaves it out)."""
@@ -30,21 +30,11 @@ def cpu_model(cpuinfo: Path = CPUINFO) -> str:
     return ""
 
 
-def bf16_unit() -> str:
-    """Which unit computes bf16 on this CPU: "AMX" (matrix tiles), "AVX-512 BF16, no AMX", or
-    "" where neither does."""
-    if getattr(torch.cpu, "_is_amx_tile_supported", lambda: False)():
-        return "AMX"
-    if getattr(torch.cpu, "_is_avx512_bf16_supported", lambda: False)():
-        return "AVX-512 BF16, no AMX"
-    return ""
-
-
 def describe(cpuinfo: Path = CPUINFO) -> str:
     """E.g. "x86_64 AVX2, no bf16 in hardware" or "x86_64 AVX512, bf16 in hardware (AVX-512
     BF16, no AMX), AMD EPYC"; the model name where Linux gives one."""
     if native_bf16("cpu"):
-        unit = bf16_unit()
+        unit = cpu_bf16_unit()
         bf16 = f"bf16 in hardware ({unit})" if unit else "bf16 in hardware"
     else:
         bf16 = "no bf16 in hardware"
