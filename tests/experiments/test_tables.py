@@ -13,6 +13,8 @@ from clamgen.experiments.evaluate import EpisodeRecord
 from clamgen.experiments.tables import (
     Z_95,
     ObstacleRow,
+    PairedCount,
+    paired_count,
     path_ratio,
     table1,
     table1_markdown,
@@ -90,6 +92,20 @@ def test_wilson_interval_matches_hand_computed_values():
     with pytest.raises(ValueError, match="successes"):
         wilson_interval(3, 2)
 
+
+
+def test_paired_count_counts_disagreements_and_their_sign_test():
+    first = [True, True, True, False, False, True]
+    second = [True, False, False, False, True, True]
+    count = paired_count(first, second)
+    assert (count.first_only, count.second_only) == (2, 1)
+    # Three disagreements split 2:1: two-sided exact P = 2 * P(X <= 1 | n=3, p=1/2) = 1.
+    assert count.p_value == pytest.approx(1.0)
+    # Eight split 8:0: 2 / 2^8.
+    assert paired_count([True] * 8, [False] * 8).p_value == pytest.approx(2 / 256)
+    assert paired_count([True, False], [True, False]) == PairedCount(0, 0, 1.0)
+    with pytest.raises(ValueError, match="one length"):
+        paired_count([True], [True, False])
 
 def obstacle_row(name, family, success, collided, reached, plan=None):
     """A row from per-task outcomes (success = reached and not collided)."""

@@ -519,9 +519,7 @@ def run(name: str, family: str, seeds: list[int]) -> dict:
 
 
 def summary(lines: list[dict]) -> None:
-    from scipy.stats import binomtest
-
-    from clamgen.experiments.tables import wilson_interval
+    from clamgen.experiments.tables import paired_count, wilson_interval
 
     def rate(values: list[bool]) -> str:
         k, n = int(np.sum(values)), len(values)
@@ -542,10 +540,11 @@ def summary(lines: list[dict]) -> None:
             for other in COMPARED.get(name, ()):
                 if (other, family) not in by:
                     continue
-                a, b = np.array(line["success"]), np.array(by[other, family]["success"])
-                gained, lost = int((b & ~a).sum()), int((a & ~b).sum())
-                p = binomtest(gained, gained + lost).pvalue if gained + lost else 1.0
-                text += f"; {other} solves {gained} it fails, fails {lost} it solves (P = {p:.3f})"
+                count = paired_count(line["success"], by[other, family]["success"])
+                text += (
+                    f"; {other} solves {count.second_only} it fails, fails {count.first_only} "
+                    f"it solves (P = {count.p_value:.3f})"
+                )
             print(text)
 
 

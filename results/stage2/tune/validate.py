@@ -4,7 +4,15 @@
 
 Each policy runs on `--num-tasks` blocked-path and standard obstacle tasks with validation seeds
 (VALIDATION_SEEDS.start + VALIDATION_OFFSET + i: past the 50 that training's periodic
-evaluation uses). Prints one line per policy and family and appends them to validation.jsonl.
+evaluation uses). Prints one line per policy and family and appends them to validation.jsonl,
+with each task's outcome (lines from before session 38 have only the rates).
+
+    python results/stage2/tune/validate.py --paired priv-least-s1 priv-fixed-s1 \
+        --paired priv-least-s2 priv-fixed-s2
+
+compares policies already scored on the same tasks (by label or source, the latest line of
+each per family and block), task by task: how many tasks only one of them solves, with the
+exact sign test's P, per pair and summed over the pairs.
 """
 
 from __future__ import annotations
@@ -20,18 +28,27 @@ import torch
 from clamgen.envs import ReachEnv
 from clamgen.experiments import lookahead
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.evaluate import evaluate, per_task
 from clamgen.experiments.lookahead import LookaheadPolicy, LookaheadTeacher
 from clamgen.experiments.policies import load_policy, policy_label
 from clamgen.experiments.shield import load_shielded_student
-from clamgen.experiments.tables import wilson_interval
+from clamgen.experiments.tables import paired_count, wilson_interval
 
 VALIDATION_OFFSET = 10_000
+OUT = Path(__file__).with_name("validation.jsonl")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("policies", nargs="+")
+    parser.add_argument("policies", nargs="*")
+    parser.add_argument(
+        "--paired",
+        nargs=2,
+        action="append",
+        metavar=("FIRST", "SECOND"),
+        help="compare two policies' lines in validation.jsonl task by task instead of scoring "
+        "(repeat for several pairs; the totals sum them)",
+    )
     parser.add_argument("--num-tasks", type=int, default=100)
     parser.add_argument("--families", nargs="+", default=["blocked", "obstacles"])
     parser.add_argument(
@@ -148,6 +165,11 @@ def main() -> None:
         help="the depth shield's alternatives leave out the slid action",
     )
     args = parser.parse_args()
+    if args.paired:
+        compare(args.paired)
+        return
+    if not args.policies:
+        parser.error("name the policies to score, or --paired FIRST SECOND")
     torch.set_num_threads(1)
     for name in args.policies:
         if args.shield is not None:
@@ -250,7 +272,6 @@ def score(
     """Run `policy` on `num_tasks` validation tasks of each family; print and append one line
     per family to validation.jsonl; {family: success}."""
     seeds = VALIDATION_SEEDS.seeds(num_tasks, VALIDATION_SEEDS.start + offset)
-    out = Path(__file__).with_name("validation.jsonl")
     scores = {}
     for family in families:
         tic = time.perf_counter()
@@ -270,16 +291,56 @@ def score(
             "collision": float(np.mean([r.collided for r in records])),
             "seconds": time.perf_counter() - tic,
         }
+        outcomes = per_task(records)
+        row["act_median_ms"] = outcomes.pop("act_median_ms")
+        row["tasks"] = outcomes
         print(
             f"{label:28s} {family:9s} success {row['success']:.3f} "
             f"[{low:.2f}, {high:.2f}] collision {row['collision']:.3f} "
             f"({row['seconds']:.0f} s)",
             flush=True,
         )
-        with out.open("a") as f:
+        with OUT.open("a") as f:
             f.write(json.dumps(row) + "\n")
         scores[family] = row["success"]
     return scores
+
+
+def compare(pairs: list[list[str]]) -> None:
+    """Print, per family and block, how the pairs' per-task successes differ (validation.jsonl's
+    latest line of each policy, matched by label or source), and the totals over the pairs."""
+    latest = {}
+    for line in OUT.read_text().splitlines():
+        row = json.loads(line)
+        if "tasks" in row:
+            block = (row["family"], row["first_seed"], row["num_tasks"])
+            latest[row["policy"], block] = latest[row["source"], block] = row
+    if not latest:
+        raise SystemExit(f"{OUT} has no lines with per-task outcomes yet")
+    blocks = sorted({block for _, block in latest})
+    for family, first_seed, num_tasks in blocks:
+        block = (family, first_seed, num_tasks)
+        firsts, seconds = [], []
+        for first, second in pairs:
+            if (first, block) not in latest or (second, block) not in latest:
+                continue
+            a = latest[first, block]["tasks"]["success"]
+            b = latest[second, block]["tasks"]["success"]
+            count = paired_count(a, b)
+            print(
+                f"{family:9s} {num_tasks} tasks from {first_seed}: {first} {sum(a)}, {second} "
+                f"{sum(b)}; only {first} {count.first_only}, only {second} "
+                f"{count.second_only} (P = {count.p_value:.3f})"
+            )
+            firsts += a
+            seconds += b
+        if len(firsts) > num_tasks:
+            count = paired_count(firsts, seconds)
+            print(
+                f"{family:9s} {num_tasks} tasks from {first_seed}, all pairs: {sum(firsts)} "
+                f"against {sum(seconds)}; only the firsts {count.first_only}, only the seconds "
+                f"{count.second_only} (P = {count.p_value:.3f})"
+            )
 
 
 if __name__ == "__main__":

@@ -194,6 +194,30 @@ def wilson_interval(successes: int, num_tasks: int, z: float = Z_95) -> tuple[fl
     return low, high
 
 
+
+@dataclass(frozen=True)
+class PairedCount:
+    """Two policies on the same tasks: how many tasks only the first solves (`first_only`),
+    only the second (`second_only`), and the exact two-sided sign test's P on those tasks
+    (McNemar's exact test; 1.0 when they never disagree)."""
+
+    first_only: int
+    second_only: int
+    p_value: float
+
+
+def paired_count(first, second) -> PairedCount:
+    """Compare two per-task success lists of the same tasks in the same order."""
+    from scipy.stats import binomtest
+
+    a, b = np.asarray(first, dtype=bool), np.asarray(second, dtype=bool)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"need two per-task lists of one length, got {a.shape} and {b.shape}")
+    first_only, second_only = int((a & ~b).sum()), int((b & ~a).sum())
+    disagree = first_only + second_only
+    p = binomtest(first_only, disagree).pvalue if disagree else 1.0
+    return PairedCount(first_only, second_only, float(p))
+
 @dataclass
 class ObstacleRow:
     """One Table 2 row on one task family. Rates are fractions of `num_tasks`."""
