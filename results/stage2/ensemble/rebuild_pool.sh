@@ -5,16 +5,23 @@
 # (summary.json) is skipped.
 #   results/stage2/ensemble/rebuild_pool.sh SEED...    (the runs behind the pool: 1 2 3 4; 5-8 for
 #   session 35's eight-run pool)
+#   results/stage2/ensemble/rebuild_pool.sh --least-offset SEED...    (session 37: the same
+#   command with the lookahead's least-offset choice among clean plans, README "A teacher that
+#   bends least, on images"; runs/reseed/d3-least-seedS)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
+PREFIX=d3-seed; EXTRA=
+if [ "$1" = --least-offset ]; then
+  PREFIX=d3-least-seed; EXTRA=--distill.lookahead-least-offset; shift
+fi
 for S in "$@"; do
-  RUN=runs/reseed/d3-seed$S
+  RUN=runs/reseed/$PREFIX$S
   [ -f $RUN/summary.json ] && continue
   .venv/bin/clamgen distill --preset residual-cpu --env.env-id CLAMGen/ReachMixed-v0 \
     --distill.teacher results/stage2/distill/teacher/policy.pt --distill.iterations 10 \
     --distill.episodes-per-iteration 300 --distill.updates-per-iteration 4000 \
     --distill.pose-weight 1.0 --distill.lookahead-candidates 16 \
-    --distill.lookahead-fixed-offsets --env.num-views 3 --agent.encoder.num-views 3 \
+    --distill.lookahead-fixed-offsets $EXTRA --env.num-views 3 --agent.encoder.num-views 3 \
     --distill.seed $S --loop.torch-threads 1 --run-dir $RUN
 done
