@@ -10,7 +10,8 @@
 #         pool8-sS (session 35: eight runs' data, runs/reseed/d3-seed1..8, 96000 steps; seed 7
 #         first, seed 8 beside it in session 36), pool7-sS (the fallback if the eight runs'
 #         cache is too slow: seeds 1..7), least4-sS (session 37: the four DAgger runs of
-#         rebuild_pool.sh --least-offset, whose lookahead keeps the clean plan of least deviation; 48000 steps)
+#         rebuild_pool.sh --least-offset, whose lookahead keeps the clean plan of least
+#         deviation; 48000 steps)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
