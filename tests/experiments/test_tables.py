@@ -93,7 +93,6 @@ def test_wilson_interval_matches_hand_computed_values():
         wilson_interval(3, 2)
 
 
-
 def test_paired_count_counts_disagreements_and_their_sign_test():
     first = [True, True, True, False, False, True]
     second = [True, False, False, False, True, True]
@@ -106,6 +105,7 @@ def test_paired_count_counts_disagreements_and_their_sign_test():
     assert paired_count([True, False], [True, False]) == PairedCount(0, 0, 1.0)
     with pytest.raises(ValueError, match="one length"):
         paired_count([True], [True, False])
+
 
 def obstacle_row(name, family, success, collided, reached, plan=None):
     """A row from per-task outcomes (success = reached and not collided)."""

@@ -315,8 +315,11 @@ def compare(pairs: list[list[str]]) -> None:
         if "tasks" in row:
             block = (row["family"], row["first_seed"], row["num_tasks"])
             latest[row["policy"], block] = latest[row["source"], block] = row
-    if not latest:
-        raise SystemExit(f"{OUT} has no lines with per-task outcomes yet")
+    unknown = {name for pair in pairs for name in pair} - {name for name, _ in latest}
+    if unknown:
+        raise SystemExit(
+            f"no line of {OUT.name} with per-task outcomes names {', '.join(sorted(unknown))}"
+        )
     blocks = sorted({block for _, block in latest})
     for family, first_seed, num_tasks in blocks:
         block = (family, first_seed, num_tasks)

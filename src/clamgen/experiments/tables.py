@@ -194,7 +194,6 @@ def wilson_interval(successes: int, num_tasks: int, z: float = Z_95) -> tuple[fl
     return low, high
 
 
-
 @dataclass(frozen=True)
 class PairedCount:
     """Two policies on the same tasks: how many tasks only the first solves (`first_only`),
@@ -217,6 +216,7 @@ def paired_count(first, second) -> PairedCount:
     disagree = first_only + second_only
     p = binomtest(first_only, disagree).pvalue if disagree else 1.0
     return PairedCount(first_only, second_only, float(p))
+
 
 @dataclass
 class ObstacleRow:
