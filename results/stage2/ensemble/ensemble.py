@@ -211,7 +211,8 @@ STUDENTS = {
             ("3v-pool8-s8", "d3-pool8-96k-s8"),  # session 36: a second seed beside it
             ("3v-pool7-s7", "d3-pool7-96k-s7"),  # its fallback (seven runs), if too slow
             # Session 37: four DAgger runs whose lookahead keeps the clean plan of least
-            # deviation (`rebuild_pool.sh --least-offset`), the shipped recipe's regression otherwise.
+            # deviation (`rebuild_pool.sh --least-offset`), the shipped recipe's regression
+            # otherwise.
             ("3v-least4-s7", "d3-least4-48k-s7"),
         )
     },
