@@ -320,9 +320,8 @@ def compare(pairs: list[list[str]]) -> None:
         raise SystemExit(
             f"no line of {OUT.name} with per-task outcomes names {', '.join(sorted(unknown))}"
         )
-    blocks = sorted({block for _, block in latest})
-    for family, first_seed, num_tasks in blocks:
-        block = (family, first_seed, num_tasks)
+    for block in sorted({block for _, block in latest}):
+        family, first_seed, num_tasks = block
         firsts, seconds = [], []
         for first, second in pairs:
             if (first, block) not in latest or (second, block) not in latest:
