@@ -235,6 +235,14 @@ def test_eval_lookahead_needs_a_privileged_residual(workdir):
     assert "--lookahead-margin-m must be a number >= 0, got -0.01" in message
 
 
+def test_eval_action_scale_outside_0_1_is_one_line(workdir):
+    for scale in ("0", "1.5", "nan"):
+        message = refused(
+            workdir, "eval", "--table", "2", "--policy", "ik", "--action-scale", scale
+        )
+        assert f"bad --action-scale: action scale must be in (0, 1], got {float(scale)}" in message
+
+
 def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
     message = refused(
         workdir, "eval", "--table", "2", "--policy", "base", "--depth-shield-m", "0.01"

@@ -421,6 +421,11 @@ class EvalConfig:
     that would touch an obstacle (`stall.StallBurst`, beyond the paper): no step plans. Alone,
     the setting of Table 2's escape rows (`depth_planner.ESCAPES`: the hybrids' shield with the
     unseen-space test); with --depth-shield-m, added to the shield those options give."""
+    action_scale: float = 1.0
+    """The policy's actions multiplied by this, in (0, 1]: each step in the same direction and
+    this much as long, a slower arm that takes more steps to reach (`clamgen.policy.
+    ScaledPolicy`, beyond the paper). 1: as trained. With the depth options the shield checks
+    the scaled steps (its random escapes are not scaled)."""
 
 
 TABLE2_ROW_NAMES = {
@@ -481,6 +486,7 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
+    policy, source = _with_action_scale(policy, source, config.action_scale)
     if _wants_depth_shield(config):
         policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
     if env_id not in ENV_IDS:
@@ -608,6 +614,19 @@ def _depth_guard(config):
     )
 
 
+def _with_action_scale(policy, source: str, scale: float):
+    """`policy` with its actions multiplied by `scale` (itself at 1), and its source;
+    SystemExit for a scale outside (0, 1]."""
+    if scale == 1.0:
+        return policy, source
+    from clamgen.policy import ScaledPolicy
+
+    try:
+        return ScaledPolicy(policy, scale), f"{source}, actions scaled by {scale:g}"
+    except ValueError as error:
+        raise SystemExit(f"bad --action-scale: {error}") from error
+
+
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):
     """`policy` planning with `candidates` lookahead rollouts keeping clearance `margin_m`;
     SystemExit unless it is a privileged residual."""
@@ -687,6 +706,7 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
+        policy, _ = _with_action_scale(policy, "", config.action_scale)
         if _wants_depth_shield(config):
             policy, _, env_kwargs = _with_depth_shield(policy, "", env_kwargs, config)
         env_id = _policy_env_id(config.policy)

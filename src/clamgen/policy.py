@@ -18,3 +18,27 @@ class Policy(Protocol):
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray: ...
 
     def reset(self, env: Any | None = None) -> None: ...
+
+
+class ScaledPolicy:
+    """`policy` acting with its actions multiplied by `scale` (0 < scale <= 1): each step in
+    the same direction, `scale` as long (the env moves each joint by the action times
+    `MAX_JOINT_DELTA_RAD`), so the arm moves more slowly and reaches in more steps. A test-time
+    setting of any policy (`clamgen eval --action-scale`); 1 acts as trained."""
+
+    def __init__(self, policy: Policy, scale: float) -> None:
+        if not 0.0 < scale <= 1.0:
+            raise ValueError(f"action scale must be in (0, 1], got {scale}")
+        self.policy = policy
+        self.scale = float(scale)
+
+    @property
+    def agent(self):
+        """The wrapped policy's agent, if it has one (what its networks observe)."""
+        return getattr(self.policy, "agent", None)
+
+    def reset(self, env: Any | None = None) -> None:
+        self.policy.reset(env)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.float32(self.scale) * np.asarray(self.policy.act(obs), np.float32)

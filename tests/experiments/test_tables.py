@@ -82,6 +82,26 @@ def test_eval_command_errors_are_clear(tmp_path):
     assert (tmp_path / "ik.md").exists()
 
 
+def test_eval_with_an_action_scale_moves_the_arm_in_more_steps(tmp_path):
+    steps = {}
+    for scale, stem in ((1.0, "full"), (0.5, "half")):
+        config = EvalConfig(
+            table=2,
+            policy="ik",
+            num_tasks=2,
+            families=("obstacles",),
+            action_scale=scale,
+            out=tmp_path / stem,
+        )
+        (row,) = evaluate_table(config)
+        data = json.loads((tmp_path / f"{stem}.json").read_text())
+        assert data["rows"][0]["mean_steps"] == row.mean_steps
+        steps[stem] = row.mean_steps
+        assert row.reach_rate == 1.0
+    assert data["policy"] == "ik_interpolation, actions scaled by 0.5"
+    assert steps["half"] > 1.5 * steps["full"]  # half-length steps along the same path
+
+
 def test_wilson_interval_matches_hand_computed_values():
     # 50/100: centre 0.5, half width 1.96 sqrt(0.0025 + 1.96^2 / 40000) / (1 + 1.96^2 / 100).
     low, high = wilson_interval(50, 100)

@@ -248,6 +248,9 @@ class ObstacleRow:
     (`CLAMGen/ReachBlocked-v0`)."""
     first_seed: int = TEST_SEEDS.start
     """Tasks are seeds first_seed .. first_seed + num_tasks - 1."""
+    mean_steps: float | None = None
+    """Steps per episode (it ends at the target, or after `MAX_EPISODE_STEPS`): how fast the
+    arm gets there; None in rows measured before it was recorded."""
 
     @property
     def num_successes(self) -> int:
@@ -347,6 +350,7 @@ def table2_row(
         task_success=[bool(r.success) for r in records],
         family=family,
         first_seed=int(seeds[0]),
+        mean_steps=float(np.mean([r.steps for r in records])),
     )
 
 

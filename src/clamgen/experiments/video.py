@@ -80,6 +80,9 @@ class RenderConfig:
     depth_escapes: bool = False
     """Instead of --depth-planner: random escapes from stalls inside the shield, as `clamgen
     eval --depth-escapes` (alone: the escape rows' setting)."""
+    action_scale: float = 1.0
+    """The policy's actions multiplied by this, in (0, 1] (a slower arm), as `clamgen eval
+    --action-scale`. 1: as trained."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:

@@ -1,0 +1,68 @@
+"""Score policies on validation tasks (never test tasks) with their actions scaled.
+
+    python results/stage2/action_scale/scales.py POLICY [POLICY ...] --scales 1.0 0.8 0.6 \
+        --offset 380000 --num-tasks 300 --out choice.jsonl
+
+Each policy (a shipped name or a policy file) acts on `--num-tasks` blocked-path tasks and a
+third as many standard obstacle tasks with validation seeds from `VALIDATION_SEEDS.start +
+offset`, once per scale k, its action multiplied by k (`clamgen.policy.ScaledPolicy`, as
+`clamgen eval --action-scale`). Appends one JSON line per policy, family and scale: successes,
+collisions, mean steps and each task's success and collision, in seed order.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import VALIDATION_SEEDS
+from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.policies import load_policy
+from clamgen.policy import ScaledPolicy
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("policies", nargs="+")
+    parser.add_argument("--scales", type=float, nargs="+", default=[1.0])
+    parser.add_argument("--offset", type=int, required=True, help="into the validation seeds")
+    parser.add_argument("--num-tasks", type=int, default=300, help="blocked tasks")
+    parser.add_argument("--out", type=Path, required=True, help="JSON lines to append to")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    for name in args.policies:
+        policy, _, env_kwargs = load_policy(name)
+        for family, num_tasks in (("blocked", args.num_tasks), ("obstacles", args.num_tasks // 3)):
+            env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
+            seeds = VALIDATION_SEEDS.seeds(num_tasks, VALIDATION_SEEDS.start + args.offset)
+            for scale in args.scales:
+                records = evaluate(env, ScaledPolicy(policy, scale), seeds)
+                row = {
+                    "policy": str(name),
+                    "family": family,
+                    "scale": scale,
+                    "first_seed": int(seeds[0]),
+                    "num_tasks": num_tasks,
+                    "success": sum(r.success for r in records),
+                    "collided": sum(r.collided for r in records),
+                    "mean_steps": round(float(np.mean([r.steps for r in records])), 2),
+                    "task_success": [int(r.success) for r in records],
+                    "task_collided": [int(r.collided) for r in records],
+                }
+                print(
+                    f"{name} {family} x{scale:g}: {row['success']} of {num_tasks}, "
+                    f"{row['collided']} collided, {row['mean_steps']} steps",
+                    flush=True,
+                )
+                with args.out.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+            env.close()
+
+
+if __name__ == "__main__":
+    main()
