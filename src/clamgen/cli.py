@@ -423,9 +423,9 @@ class EvalConfig:
     unseen-space test); with --depth-shield-m, added to the shield those options give."""
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1]: each step in the same direction and
-    this much as long, a slower arm that takes more steps to reach (`clamgen.policy.
-    ScaledPolicy`, beyond the paper). 1: as trained. With the depth options the shield checks
-    the scaled steps (its random escapes are not scaled)."""
+    this much as long, a slower arm that takes more steps to reach
+    (`clamgen.policy.ScaledPolicy`, beyond the paper). 1: as trained. With the depth options
+    the shield checks the scaled steps (its random escapes are not scaled)."""
 
 
 TABLE2_ROW_NAMES = {
