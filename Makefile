@@ -39,6 +39,7 @@ bench: install
 	$(PY) benchmarks/render.py
 	$(PY) benchmarks/sb3_her.py
 	$(PY) benchmarks/pool_gather.py
+	$(PY) benchmarks/concurrent_jobs.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis

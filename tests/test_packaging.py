@@ -1,5 +1,6 @@
 """The wheel carries the MIT LICENSE that pyproject.toml declares."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -53,3 +54,13 @@ def test_wheel_contains_the_license(tmp_path):
         assert archive.read(licenses[0]).decode() == (ROOT / "LICENSE").read_text()
         metadata = next(n for n in archive.namelist() if n.endswith(".dist-info/METADATA"))
         assert "License-Expression: MIT" in archive.read(metadata).decode()
+
+
+def test_import_sets_one_blas_thread_unless_the_user_chose():
+    code = "import os, clamgen; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    env = {key: value for key, value in os.environ.items() if key != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.stdout.strip() == "1", out.stderr
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.stdout.strip() == "2", out.stderr
