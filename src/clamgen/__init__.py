@@ -5,8 +5,8 @@ import os
 # Headless rendering by default; a user's own MUJOCO_GL (e.g. "osmesa", "glfw") wins.
 os.environ.setdefault("MUJOCO_GL", "egl")
 # One BLAS thread per process by default; a user's own OPENBLAS_NUM_THREADS wins. With more,
-# numpy's OpenBLAS hands some of the rendering env's matrix products to a worker thread that
-# then spins on another core: two evaluations at once on a 2-core machine each took 1.7x as
+# numpy's OpenBLAS hands larger matrix products (the IK solver's duplicate test, run when a
+# task is sampled) to a worker thread that then spins on another core: two evaluations at once on a 2-core machine each took 1.7x as
 # long, two stage-2 training runs 1.14x (`benchmarks/concurrent_jobs.py`). It takes effect when
 # numpy is first imported after this, as on the command line; a program that imports numpy
 # before clamgen can set it first.
