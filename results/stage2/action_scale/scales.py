@@ -27,7 +27,7 @@ import torch
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.evaluate import evaluate, per_task
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.tables import paired_count
 from clamgen.policy import ScaledPolicy
@@ -54,18 +54,18 @@ def main() -> None:
             env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
             seeds = VALIDATION_SEEDS.seeds(num_tasks, VALIDATION_SEEDS.start + args.offset)
             for scale in args.scales:
-                records = evaluate(env, ScaledPolicy(policy, scale), seeds)
+                tasks = per_task(evaluate(env, ScaledPolicy(policy, scale), seeds))
                 row = {
                     "policy": str(name),
                     "family": family,
                     "scale": scale,
                     "first_seed": int(seeds[0]),
                     "num_tasks": num_tasks,
-                    "success": sum(r.success for r in records),
-                    "collided": sum(r.collided for r in records),
-                    "mean_steps": round(float(np.mean([r.steps for r in records])), 2),
-                    "task_success": [int(r.success) for r in records],
-                    "task_collided": [int(r.collided) for r in records],
+                    "success": sum(tasks["success"]),
+                    "collided": sum(tasks["collided"]),
+                    "mean_steps": round(float(np.mean(tasks["steps"])), 2),
+                    "task_success": [int(s) for s in tasks["success"]],
+                    "task_collided": [int(c) for c in tasks["collided"]],
                 }
                 print(
                     f"{name} {family} x{scale:g}: {row['success']} of {num_tasks}, "
