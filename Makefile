@@ -25,7 +25,8 @@ demo: install
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --out runs/demo/blocked_clamgen --overwrite
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy ik --out runs/demo/blocked_ik --overwrite
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --depth-hybrid --name "residual-2views + depth shield + planner when stuck" --out runs/demo/blocked_planned --overwrite
-	$(VENV)/bin/clamgen render --policy residual-2views --env-id CLAMGen/ReachBlocked-v0 --num-episodes 1 --out runs/demo/blocked_rollout --overwrite
+	$(VENV)/bin/clamgen render --policy residual-2views --env-id CLAMGen/ReachBlocked-v0 --num-episodes 1 --outcome success --out runs/demo/blocked_success --overwrite
+	$(VENV)/bin/clamgen render --policy residual-2views --env-id CLAMGen/ReachBlocked-v0 --num-episodes 1 --outcome failure --out runs/demo/blocked_failure --overwrite
 	$(VENV)/bin/clamgen demo --num-episodes 3
 
 test: install

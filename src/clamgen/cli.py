@@ -719,6 +719,9 @@ def render(config) -> dict:
         raise SystemExit(str(error)) from error
     for episode in summary["episodes"]:
         print(episode)
+    if summary["outcome"] != "any":
+        found = len(summary["episodes"])
+        print(f"{found} {summary['outcome']} episode(s) in {summary['tasks_tried']} tasks tried")
     print(f"wrote {summary['mp4']} and {summary['gif']}")
     return summary
 

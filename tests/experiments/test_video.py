@@ -1,6 +1,7 @@
 """`clamgen render`: a valid video of the expected length and size, plus GIF and summary."""
 
 import json
+from dataclasses import replace
 
 import imageio.v2 as imageio
 import pytest
@@ -38,3 +39,49 @@ def test_render_refuses_bad_options(tmp_path):
         render_rollouts(RenderConfig(env_id="Pendulum-v1"), IKInterpolationPolicy(), "ik")
     with pytest.raises(ValueError, match="num_views"):
         render_rollouts(RenderConfig(num_views=7), IKInterpolationPolicy(), "ik")
+
+
+class FirstEpisodeIdle(IKInterpolationPolicy):
+    """IK interpolation that stays still for its first episode (which then fails)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.episodes = 0
+
+    def reset(self, env=None) -> None:
+        super().reset(env)
+        self.episodes += 1
+
+    def act(self, obs):
+        action = super().act(obs)
+        return action * 0 if self.episodes == 1 else action
+
+
+def test_render_films_only_the_outcome_asked_for(tmp_path):
+    config = RenderConfig(
+        env_id=ENV_IDS[0], num_episodes=1, num_views=0, outcome="success", out=tmp_path / "ik"
+    )
+    summary = render_rollouts(config, FirstEpisodeIdle(), "ik")
+    # The first task (seed 1e9) failed and was left out; the second is the one filmed.
+    assert summary["tasks_tried"] == 2 and summary["outcome"] == "success"
+    [episode] = summary["episodes"]
+    assert episode["success"] and episode["seed"] == config.seed + 1
+    frames = imageio.get_reader(tmp_path / "ik.mp4").count_frames()
+    assert frames == episode["steps"] + HOLD_FINAL_FRAMES
+    assert json.loads((tmp_path / "ik.json").read_text())["tasks_tried"] == 2
+
+
+def test_render_without_the_outcome_asked_for_writes_nothing(tmp_path):
+    config = RenderConfig(
+        env_id=ENV_IDS[0],
+        num_views=0,
+        num_episodes=1,
+        outcome="failure",
+        max_tries=2,
+        out=tmp_path / "ik",
+    )
+    with pytest.raises(ValueError, match=r"none of the 2 tasks from seed \d+ ended in failure"):
+        render_rollouts(config, IKInterpolationPolicy(), "ik")
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="max_tries"):
+        render_rollouts(replace(config, max_tries=0), IKInterpolationPolicy(), "ik")

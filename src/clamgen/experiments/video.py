@@ -2,14 +2,18 @@
 
 Each frame: the outside view (with the tip's path drawn as yellow dots) beside the policy's own
 camera views, and a caption with the policy, episode, step and outcome. A step that collided
-gets a red border; the episode's last frames say SUCCESS or FAILURE.
+gets a red border; the episode's last frames say SUCCESS or FAILURE. With `outcome` set, only
+episodes that ended that way are filmed: tasks are tried in turn from the first seed, and the
+summary says how many were tried.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import imageio.v2 as imageio
 import numpy as np
@@ -24,6 +28,8 @@ from clamgen.sim.render import MultiViewRenderer
 
 OVERVIEW_SIZE = (480, 640)  # height, width
 HOLD_FINAL_FRAMES = 15  # 0.75 s at 20 fps on the outcome
+MAX_TRIES = 50
+"""Tasks tried at most when only episodes of one outcome are filmed (`RenderConfig.outcome`)."""
 GREEN, RED, WHITE = (40, 200, 60), (230, 40, 40), (255, 255, 255)
 
 
@@ -37,6 +43,12 @@ class RenderConfig:
     """A CLAMGen env id (its task family: reach, obstacles, blocked, mixed)."""
     num_episodes: int = 3
     """Episodes, one after the other in the same video."""
+    outcome: Literal["any", "success", "failure"] = "any"
+    """Film only episodes that ended this way: tasks from --seed on are run in turn until
+    --num-episodes of them are found (at most --max-tries tasks); `any` films the first
+    --num-episodes tasks."""
+    max_tries: int = MAX_TRIES
+    """With --outcome success or failure: tasks run at most to find them."""
     seed: int = 1_000_000_000
     """Seed of the first episode (held-out evaluation seeds by default)."""
     target_speed: str = "0"
@@ -161,8 +173,7 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         raise ValueError(f"env_id must be one of {ENV_IDS}, got {config.env_id!r}")
     if not 0 <= config.num_views <= C.NUM_CAMERAS:
         raise ValueError(f"num_views must be in 0..{C.NUM_CAMERAS}")
-    if config.num_episodes < 1 or config.fps < 1:
-        raise ValueError("num_episodes and fps must be >= 1")
+    _check_counts(config)
     out = output_stem(config, label)
     speed = validate_speed(
         config.target_speed if config.target_speed == "variable" else float(config.target_speed)
@@ -175,50 +186,107 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         **(env_kwargs or {}),
     )
     renderer = RolloutRenderer(env, config.num_views)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    mp4_path, gif_path = out.with_suffix(".mp4"), out.with_suffix(".gif")
-    writer = imageio.get_writer(mp4_path, fps=config.fps, macro_block_size=8)
-    gif_frames, episodes = [], []
-    bar = tqdm(total=config.num_episodes, unit="episode", desc="rendering")
-    for i in range(config.num_episodes):
-        seed = config.seed + i
-        caption = f"{label}  episode {i + 1}/{config.num_episodes}"
-        film = _EpisodeFilm(renderer, writer, gif_frames, caption)
+
+    def episode(seed: int, caption: str) -> tuple[dict, list, list]:
+        film = _EpisodeFilm(renderer, caption)
         record = run_episode(env, policy, seed, on_step=film)
         outcome = ("SUCCESS" if record.success else "FAILURE", GREEN if record.success else RED)
         lines = [(f"{caption}  step {record.steps}", WHITE), outcome]
         final = renderer.frame(np.array(film.tips), lines, border=outcome[1])
-        for _ in range(HOLD_FINAL_FRAMES):
-            writer.append_data(final)
-        gif_frames += [final] * (HOLD_FINAL_FRAMES // 2)
-        episodes.append(record.outcome())
-        bar.update(1)
-        bar.set_postfix(success=f"{np.mean([e['success'] for e in episodes]):.2f}")
-    bar.close()
-    writer.close()
+        frames = film.frames + [final] * HOLD_FINAL_FRAMES
+        return record.outcome(), frames, film.gif_frames + [final] * (HOLD_FINAL_FRAMES // 2)
+
+    try:
+        summary = _write_films(config, out, label, episode, macro_block_size=8)
+    finally:
+        renderer.close()
+        env.close()
+    summary = {"policy": label, "env_id": config.env_id, "target_speed": speed, **summary}
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+Episode = Callable[[int, str], tuple[dict, list[np.ndarray], list[np.ndarray]]]
+"""`episode(seed, caption)` -> (its outcome as JSON, its video frames, its GIF frames)."""
+
+
+def _check_counts(config: RenderConfig) -> None:
+    if config.num_episodes < 1 or config.fps < 1:
+        raise ValueError("num_episodes and fps must be >= 1")
+    if config.outcome not in ("any", "success", "failure"):
+        raise ValueError(f"outcome must be any, success or failure, got {config.outcome!r}")
+    if config.outcome != "any" and config.max_tries < config.num_episodes:
+        raise ValueError(
+            f"max_tries ({config.max_tries}) must be >= num_episodes ({config.num_episodes})"
+        )
+
+
+def _seeds(config: RenderConfig) -> Iterator[int]:
+    """The seeds of the tasks to run, in turn: the first `num_episodes` ones, or with an
+    `outcome` to film, up to `max_tries` of them."""
+    tries = config.num_episodes if config.outcome == "any" else config.max_tries
+    return iter(range(config.seed, config.seed + tries))
+
+
+def _write_films(config: RenderConfig, out: Path, label: str, episode: Episode, **writer) -> dict:
+    """Runs `episode` on the tasks of `_seeds` and writes OUT.mp4 and OUT.gif of those with the
+    wanted outcome (every one with `outcome` "any") until `num_episodes` are kept; returns the
+    summary's episodes, tasks tried, outcome asked and file names. A one-line ValueError, and
+    no files, when no task ended that way."""
+    mp4_path, gif_path = out.with_suffix(".mp4"), out.with_suffix(".gif")
+    kept: list[dict] = []
+    gif_frames: list[np.ndarray] = []
+    video = None
+    tried = 0
+    filtering = config.outcome != "any"
+    total = config.max_tries if filtering else config.num_episodes
+    bar = tqdm(total=total, unit="task" if filtering else "episode", desc="rendering")
+    try:
+        for seed in _seeds(config):
+            caption = f"{label}  episode {len(kept) + 1}/{config.num_episodes}"
+            result, frames, gif = episode(seed, f"{caption}  seed {seed}" if filtering else caption)
+            tried += 1
+            bar.update(1)
+            if filtering and result["success"] != (config.outcome == "success"):
+                continue
+            if video is None:
+                out.parent.mkdir(parents=True, exist_ok=True)
+                video = imageio.get_writer(mp4_path, fps=config.fps, **writer)
+            for frame in frames:
+                video.append_data(frame)
+            gif_frames += gif
+            kept.append(result)
+            bar.set_postfix(kept=len(kept), success=f"{np.mean([e['success'] for e in kept]):.2f}")
+            if len(kept) == config.num_episodes:
+                break
+    finally:
+        bar.close()
+        if video is not None:
+            video.close()
+    if not kept:
+        raise ValueError(
+            f"none of the {tried} tasks from seed {config.seed} ended in {config.outcome}; "
+            "raise --max-tries or pick another --seed"
+        )
     _save_gif(gif_path, gif_frames, config)
-    renderer.close()
-    env.close()
-    summary = {
-        "policy": label,
-        "env_id": config.env_id,
-        "target_speed": speed,
-        "episodes": episodes,
+    return {
+        "outcome": config.outcome,
+        "tasks_tried": tried,
+        "episodes": kept,
         "mp4": str(mp4_path),
         "gif": str(gif_path),
     }
-    out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
-    return summary
 
 
 class _EpisodeFilm:
     """The frames of one episode, fed by the rollout loop's step hook: one per step with the tip
     path so far, plus a red-bordered one for each step that collided; every other frame also
-    goes to the GIF."""
+    goes to the GIF's frames."""
 
-    def __init__(self, renderer, writer, gif_frames: list, caption: str) -> None:
-        self.renderer, self.writer, self.gif_frames = renderer, writer, gif_frames
-        self.caption = caption
+    def __init__(self, renderer, caption: str) -> None:
+        self.renderer, self.caption = renderer, caption
+        self.frames: list[np.ndarray] = []
+        self.gif_frames: list[np.ndarray] = []
         self.tips: list[np.ndarray] = []
         self.collided = False
 
@@ -232,11 +300,11 @@ class _EpisodeFilm:
         if info is not None and info["collision"]:
             # The step that collided, with the status it started from, in a red border.
             lines = self.lines(steps - 1)
-            self.writer.append_data(self.renderer.frame(np.array(self.tips), lines, border=RED))
+            self.frames.append(self.renderer.frame(np.array(self.tips), lines, border=RED))
             self.collided = True
         if not done:
             frame = self.renderer.frame(np.array(self.tips), self.lines(steps))
-            self.writer.append_data(frame)
+            self.frames.append(frame)
             if steps % 2 == 0:
                 self.gif_frames.append(frame)
 
@@ -263,45 +331,31 @@ def render_env_rollouts(config: RenderConfig, policy, label: str, env_id: str) -
     not render frames, or does not fit the policy."""
     from clamgen.experiments.evaluate import check_policy_fits, make_goal_env
 
-    if config.num_episodes < 1 or config.fps < 1:
-        raise ValueError("num_episodes and fps must be >= 1")
+    _check_counts(config)
     out = output_stem(config, label)
     env = make_goal_env(env_id, render_mode="rgb_array")
+
+    def episode(seed: int, caption: str) -> tuple[dict, list, list]:
+        frames: list[np.ndarray] = []
+
+        def film(obs, info, done) -> None:
+            lines = [(f"{caption}  step {len(frames)}", WHITE)]
+            frames.append(_caption(np.asarray(env.render()), lines))
+
+        record = run_episode(env, policy, seed, on_step=film)
+        outcome = ("SUCCESS" if record.success else "FAILURE", GREEN if record.success else RED)
+        final = _caption(frames[-1], [(f"{caption}  step {record.steps}", WHITE), outcome])
+        frames += [_border(final, outcome[1], width=2)] * HOLD_FINAL_FRAMES
+        result = {"seed": seed, "success": record.success, "steps": record.steps}
+        if record.collisions_reported:
+            result["collided"] = record.collided
+        return result, frames, frames[::2]
+
     try:
         check_policy_fits(policy, env, env_id)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        mp4_path, gif_path = out.with_suffix(".mp4"), out.with_suffix(".gif")
-        writer = imageio.get_writer(mp4_path, fps=config.fps, macro_block_size=1)
-        gif_frames, episodes = [], []
-        for i in range(config.num_episodes):
-            caption = f"{label}  episode {i + 1}/{config.num_episodes}"
-            frames: list[np.ndarray] = []
-
-            def film(obs, info, done, frames=frames, caption=caption) -> None:
-                lines = [(f"{caption}  step {len(frames)}", WHITE)]
-                frames.append(_caption(np.asarray(env.render()), lines))
-
-            record = run_episode(env, policy, config.seed + i, on_step=film)
-            outcome = ("SUCCESS" if record.success else "FAILURE", GREEN if record.success else RED)
-            final = _caption(frames[-1], [(f"{caption}  step {record.steps}", WHITE), outcome])
-            frames += [_border(final, outcome[1], width=2)] * HOLD_FINAL_FRAMES
-            for frame in frames:
-                writer.append_data(frame)
-            gif_frames += frames[::2]
-            episode = {"seed": config.seed + i, "success": record.success, "steps": record.steps}
-            if record.collisions_reported:
-                episode["collided"] = record.collided
-            episodes.append(episode)
-        writer.close()
-        _save_gif(gif_path, gif_frames, config)
+        summary = _write_films(config, out, label, episode, macro_block_size=1)
     finally:
         env.close()
-    summary = {
-        "policy": label,
-        "env_id": env_id,
-        "episodes": episodes,
-        "mp4": str(mp4_path),
-        "gif": str(gif_path),
-    }
+    summary = {"policy": label, "env_id": env_id, **summary}
     out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     return summary
