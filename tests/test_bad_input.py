@@ -394,6 +394,19 @@ def test_render_keeps_an_existing_video(workdir):
     assert f"{Path('runs/videos/ik.mp4')} exists; pass --overwrite to replace it" in message
 
 
+def test_render_and_demo_refuse_a_negative_seed(workdir):
+    assert "--seed must be >= 0, got -5" in refused(
+        workdir, "render", "--policy", "ik", "--seed", "-5"
+    )
+    assert "--seed must be >= 0, got -1" in refused(workdir, "demo", "--seed", "-1")
+
+
+def test_render_refuses_a_bad_outcome_search(workdir):
+    flags = ("--outcome", "failure", "--num-episodes", "2", "--max-tries", "1")
+    message = refused(workdir, "render", "--policy", "ik", *flags)
+    assert "max_tries (1) must be >= num_episodes (2)" in message
+
+
 def test_eval_rrt_on_table1_says_it_plans_for_static_obstacle_tasks(workdir, capsys):
     pytest.importorskip("ompl")
     out = workdir / "rrt"

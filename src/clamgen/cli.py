@@ -78,6 +78,8 @@ def demo(config: DemoConfig) -> dict:
         raise SystemExit(f"unknown env_id {config.env_id!r}; choose one of {ENV_IDS}")
     if config.num_episodes < 1:
         raise SystemExit("num_episodes must be >= 1")
+    if config.seed < 0:
+        raise SystemExit(f"--seed must be >= 0, got {config.seed}")
     config.out_dir.mkdir(parents=True, exist_ok=True)
     env = gym.make(
         config.env_id,

@@ -213,6 +213,8 @@ Episode = Callable[[int, str], tuple[dict, list[np.ndarray], list[np.ndarray]]]
 def _check_counts(config: RenderConfig) -> None:
     if config.num_episodes < 1 or config.fps < 1:
         raise ValueError("num_episodes and fps must be >= 1")
+    if config.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {config.seed}")
     if config.outcome not in ("any", "success", "failure"):
         raise ValueError(f"outcome must be any, success or failure, got {config.outcome!r}")
     if config.outcome != "any" and config.max_tries < config.num_episodes:
