@@ -723,7 +723,8 @@ def render(config) -> dict:
         print(episode)
     if summary["outcome"] != "any":
         found = len(summary["episodes"])
-        print(f"{found} {summary['outcome']} episode(s) in {summary['tasks_tried']} tasks tried")
+        tried = summary["tasks_tried"]
+        print(f"{summary['outcome']}: {found} episode(s) filmed, {tried} task(s) run to find them")
     print(f"wrote {summary['mp4']} and {summary['gif']}")
     return summary
 
