@@ -13,6 +13,8 @@ from clamgen.experiments.report import (
     build_report,
     plot_family,
     row_colours,
+    speed_entries,
+    speed_markdown,
 )
 from clamgen.experiments.tables import ObstacleRow, SpeedRow
 
@@ -263,3 +265,21 @@ def test_every_row_of_a_full_table_gets_its_own_colour():
     rows = [f"row {i}" for i in range(30)]
     colours = row_colours(rows)
     assert len({tuple(c) for c in colours.values()}) == 30
+
+
+def test_speed_table_names_the_reference_of_the_concurrency_and_gather_benchmarks(tmp_path):
+    (tmp_path / "concurrent_jobs.csv").write_text(
+        "job,jobs_at_once,episodes_per_job,env_steps_per_job,default_s,reference_s,ratio,machine\n"
+        "evaluation,2,30,,2.79,4.69,1.68,x86_64\n"
+        "training,2,,1600,41.54,47.5,1.14,x86_64\n"
+    )
+    (tmp_path / "pool_gather.csv").write_text(
+        "cache_gib,batch_rows,gathers,page_faults_ms,read_ahead_ms,ratio,machine\n"
+        "1.0,128,30,235.92,10.02,23.55,x86_64\n"
+    )
+    text = speed_markdown(speed_entries(tmp_path))
+    assert "| wall time of an evaluation of 30 blocked-path episodes, two at once" in text
+    assert "| 2.79 s | numpy's BLAS with a thread per core" in text and "| 4.69 s | 1.68x" in text
+    assert "short stage-2 training run (1600 env steps)" in text and "| 47.50 s | 1.14x" in text
+    assert "| 10.0 ms | the same rows read by page faults alone" in text and "23.55x" in text
+    assert "as in the file" not in text
