@@ -41,6 +41,7 @@ bench: install
 	$(PY) benchmarks/sb3_her.py
 	$(PY) benchmarks/pool_gather.py
 	$(PY) benchmarks/concurrent_jobs.py
+	$(PY) benchmarks/first_act.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis

@@ -1,8 +1,10 @@
 import json
 
+import numpy as np
 import pytest
 
-from clamgen.experiments.evaluate import EpisodeRecord, per_task
+from clamgen.envs import ReachEnv
+from clamgen.experiments.evaluate import EpisodeRecord, SACPolicy, per_task, run_episode
 
 
 def test_per_task_keeps_each_episode_in_order_and_the_median_act():
@@ -29,3 +31,32 @@ def test_per_task_keeps_each_episode_in_order_and_the_median_act():
     assert out["steps"] == [20, 31, 80]
     assert out["act_median_ms"] == pytest.approx(2.5)
     json.dumps(out)  # plain Python types, for the result files
+
+
+class CountingAgent:
+    """Records the observations it acts on; always commands the first joint a little."""
+
+    def __init__(self) -> None:
+        self.seen: list[dict] = []
+
+    def act(self, obs, deterministic=False):
+        self.seen.append(obs)
+        return np.array([0.1, 0, 0, 0, 0, 0], np.float32)
+
+
+def test_a_policy_warms_up_once_on_a_blank_observation_before_its_first_episode():
+    agent = CountingAgent()
+    policy = SACPolicy(agent)
+    env = ReachEnv(
+        num_obstacles=2, task_family="obstacles", num_views=1, image_size=16, obs_mode="both"
+    )
+    first = run_episode(env, policy, seed=1_000_000_000)
+    # One extra act, untimed, on zeros shaped like the env's observations, before the first.
+    assert len(agent.seen) == first.steps + 1 == len(first.act_times_s) + 1
+    blank = agent.seen[0]
+    assert set(blank) == set(env.observation_space.spaces)
+    assert blank["images"].shape == (1, 4, 16, 16) and blank["images"].dtype == np.uint8
+    assert all(not value.any() for value in blank.values())
+    second = run_episode(env, policy, seed=1_000_000_001)
+    assert len(agent.seen) == first.steps + 1 + second.steps  # not again
+    env.close()

@@ -267,7 +267,7 @@ def test_every_row_of_a_full_table_gets_its_own_colour():
     assert len({tuple(c) for c in colours.values()}) == 30
 
 
-def test_speed_table_names_the_reference_of_the_concurrency_and_gather_benchmarks(tmp_path):
+def test_speed_table_names_the_reference_of_the_newer_benchmarks(tmp_path):
     (tmp_path / "concurrent_jobs.csv").write_text(
         "job,jobs_at_once,episodes_per_job,env_steps_per_job,default_s,reference_s,ratio,machine\n"
         "evaluation,2,30,,2.79,4.69,1.68,x86_64\n"
@@ -277,7 +277,16 @@ def test_speed_table_names_the_reference_of_the_concurrency_and_gather_benchmark
         "cache_gib,batch_rows,gathers,page_faults_ms,read_ahead_ms,ratio,machine\n"
         "1.0,128,30,235.92,10.02,23.55,x86_64\n"
     )
+    (tmp_path / "first_act.csv").write_text(
+        "policy,processes,page_cache_dropped,first_ms,reference_first_ms,max_ms,"
+        "reference_max_ms,ratio,machine\n"
+        "residual-3views,3,True,10.96,55.06,15.73,55.42,5.03,x86_64\n"
+    )
     text = speed_markdown(speed_entries(tmp_path))
+    assert "first act of a fresh process, `residual-3views` (page cache dropped)" in text
+    assert (
+        "| 11.0 ms | the same without the policy's warm-up" in text and "| 55.1 ms | 5.03x" in text
+    )
     assert "| wall time of an evaluation of 30 blocked-path episodes, two at once" in text
     assert "| 2.79 s | numpy's BLAS with a thread per core" in text and "| 4.69 s | 1.68x" in text
     assert "short stage-2 training run (1600 env steps)" in text and "| 47.50 s | 1.14x" in text

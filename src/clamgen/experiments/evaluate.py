@@ -144,9 +144,19 @@ class SACPolicy:
         self.critic_candidates = critic_candidates
         self.seed = seed
         self._generator = None
+        self._warm = False
 
     def reset(self, env: Any | None = None) -> None:
-        """Restart the candidates' random stream, so each episode acts the same every time."""
+        """Restart the candidates' random stream, so each episode acts the same every time.
+
+        At the first reset with an env, act once on a blank observation of its space first:
+        the networks' first call in a process sets up kernels and loads their code (5-150 ms
+        on a CPU), a one-time cost that the first timed act would otherwise carry."""
+        if not self._warm and env is not None:
+            self._warm = True
+            blank = blank_observation(env.observation_space)
+            if blank is not None:  # deterministic: draws nothing from a random stream
+                self.agent.act(blank, deterministic=True)
         if self.critic_candidates:
             import torch
 
@@ -158,6 +168,13 @@ class SACPolicy:
                 self.reset()
             return self.agent.act_by_critic(obs, self.critic_candidates, generator=self._generator)
         return self.agent.act(obs, deterministic=self.deterministic)
+
+
+def blank_observation(space: gym.Space) -> dict[str, np.ndarray] | None:
+    """Zeros of every entry of a Dict observation space (None for any other space)."""
+    if not isinstance(space, gym.spaces.Dict):
+        return None
+    return {key: np.zeros(sub.shape, sub.dtype) for key, sub in space.spaces.items()}
 
 
 # ------------------------------------------------------------ other goal-conditioned envs

@@ -821,6 +821,22 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
         ]
     if stem == "concurrent_jobs":
         return [_concurrent_job(r, source) for r in rows]
+    if stem == "first_act":
+        return [
+            SpeedEntry(
+                f"first act of a fresh process, `{r['policy']}`"
+                + (" (page cache dropped)" if r["page_cache_dropped"] == "True" else "")
+                + f", median of {r['processes']}",
+                f"{float(r['first_ms']):.1f} ms",
+                "the same without the policy's warm-up at its first reset, same run",
+                f"{float(r['reference_first_ms']):.1f} ms",
+                _f(r, "ratio"),
+                "reference / ours (higher: ours faster)",
+                source,
+                "first act, warm-up vs none",
+            )
+            for r in rows
+        ]
     if stem == "pool_gather":
         return [
             SpeedEntry(
