@@ -18,9 +18,10 @@ $(VENV)/.installed: pyproject.toml
 install: $(VENV)/.installed
 
 # The main job on a small default: the shipped 2-view vision policy beside obstacle-blind IK
-# interpolation on 10 held-out blocked-path tasks (both success rates printed), a GIF of one
-# vision rollout, then a picture of every camera view. Between them, the same policy acting
-# through the depth shield and planning on the depth map when stuck (beyond the paper).
+# interpolation on 10 held-out blocked-path tasks (both success rates printed), GIFs of the
+# vision policy's first success and first failure there, then a picture of every camera view.
+# Between them, the same policy acting through the depth shield and planning on the depth map
+# when stuck (beyond the paper).
 demo: install
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --out runs/demo/blocked_clamgen --overwrite
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy ik --out runs/demo/blocked_ik --overwrite
@@ -38,10 +39,16 @@ bench: install
 	$(PY) -m pip install --quiet -e ".[bench]"
 	$(PY) benchmarks/env_steps.py
 	$(PY) benchmarks/render.py
-	$(PY) benchmarks/sb3_her.py
-	$(PY) benchmarks/pool_gather.py
-	$(PY) benchmarks/concurrent_jobs.py
+	$(PY) benchmarks/render.py --quality pretty
+	$(PY) benchmarks/reset_cost.py
+	$(PY) benchmarks/act_latency.py
 	$(PY) benchmarks/first_act.py
+	$(PY) benchmarks/encoder_cost.py --sizes 84 64 56 --batches 128 64 --shared yes --threads 1
+	$(PY) benchmarks/update_cost.py --baseline-rev e63de27
+	$(PY) benchmarks/checkpoint_stall.py
+	$(PY) benchmarks/pool_gather.py
+	$(PY) benchmarks/concurrent_jobs.py --training
+	$(PY) benchmarks/sb3_her.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis
