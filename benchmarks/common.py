@@ -6,8 +6,6 @@ import csv
 import time
 from pathlib import Path
 
-from clamgen.experiments.machine import describe
-
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "benchmarks"
 
 
@@ -22,6 +20,10 @@ def best_rate(fn, num_items: int, repeats: int = 3) -> float:
 
 
 def write_csv(name: str, rows: list[dict]) -> Path:
+    # Imported here: `update_cost.py --baseline-rev` runs this file's importers on an older
+    # src/ that has no `machine` module, and only the parent process writes the CSV.
+    from clamgen.experiments.machine import describe
+
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     path = RESULTS_DIR / f"{name}.csv"
     this_machine = describe()
