@@ -62,7 +62,10 @@ def child(warm_up: bool) -> None:
 def measure(warm_up: bool, drop_caches: bool) -> dict:
     if drop_caches:
         subprocess.run(["sync"], check=True)
-        Path("/proc/sys/vm/drop_caches").write_text("3\n")
+        try:
+            Path("/proc/sys/vm/drop_caches").write_text("3\n")
+        except OSError as error:
+            raise SystemExit(f"--drop-caches needs root on Linux ({error.strerror})") from None
     flag = "on" if warm_up else "off"
     out = subprocess.run(
         [sys.executable, __file__, "--child", flag], check=True, capture_output=True, text=True
