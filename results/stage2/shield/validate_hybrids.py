@@ -10,12 +10,18 @@ has (fewer collisions?).
     python results/stage2/shield/validate_hybrids.py --setting fine --views 3 2
     python results/stage2/shield/validate_hybrids.py --setting hybrid          # session 20,
     python results/stage2/shield/validate_hybrids.py --setting hybrid-checks   # a fresh block
+    python results/stage2/shield/validate_hybrids.py --setting hybrid-now      # session 41,
+    python results/stage2/shield/validate_hybrids.py --setting escapes         # block 400000
+    python results/stage2/shield/validate_hybrids.py --setting escapes-plan-0
+    python results/stage2/shield/validate_hybrids.py --setting escapes-plan-1
 
 Each hybrid (`BEFORE[v]`, v = 3, 2, 1 views: `depth_planner.HYBRID` as it was before these
 protocols, with the shipped policies; and its variants; the `hybrid*` settings start from
 `HYBRID[v]` as it is now) acts on
 `--num-blocked` blocked and `--num-standard` standard validation tasks from `--offset` into
-the validation range; the same tasks for every setting. Appends one JSON line per (views,
+the validation range; the same tasks for every setting of a block. Session 41 (block 400000): the hybrids and the
+escape rows as committed, and the escape rows' shield with the planner too, planning only
+after 0 or 1 random escapes in the episode (`DepthGuard(planner=True, escapes=True)`). Appends one JSON line per (views,
 family) to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act;
 per run: the act time's median, 99th percentile and maximum) and skips what is there;
 `--summary` prints the comparison from those files.
@@ -33,7 +39,7 @@ import torch
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import HYBRID, DepthGuard
+from clamgen.experiments.depth_planner import ESCAPES, HYBRID, DepthGuard
 from clamgen.experiments.evaluate import evaluate, per_task
 from clamgen.experiments.machine import describe
 from clamgen.experiments.policies import load_policy
@@ -58,10 +64,25 @@ SETTINGS = {
     # planner's time budget and with the budget in checks.
     "hybrid": lambda views: HYBRID[views],
     "hybrid-checks": lambda views: replace(HYBRID[views], plan_checks=PLAN_CHECKS),
+    # Session 41, on a fresh block (--offset 400000): the hybrids and the escape rows as they
+    # are now, and the escape rows' shield with the planner after 0 or 1 escapes.
+    "hybrid-now": lambda views: HYBRID[views],
+    "escapes": lambda views: ESCAPES[views],
+    "escapes-plan-0": lambda views: replace(ESCAPES[views], planner=True, escapes_before_plan=0),
+    "escapes-plan-1": lambda views: replace(ESCAPES[views], planner=True, escapes_before_plan=1),
 }
-OFFSET = {"hybrid": 50_000, "hybrid-checks": 50_000}
+SESSION_41 = ("hybrid-now", "escapes", "escapes-plan-0", "escapes-plan-1")
+OFFSET = {"hybrid": 50_000, "hybrid-checks": 50_000} | {name: 400_000 for name in SESSION_41}
 """Where in the validation range each setting's tasks start (40000 for the others)."""
-BASELINE = {"checks": "time", "hidden": "time", "fine": "time", "hybrid-checks": "hybrid"}
+BASELINE = {
+    "checks": "time",
+    "hidden": "time",
+    "fine": "time",
+    "hybrid-checks": "hybrid",
+    "escapes": "hybrid-now",
+    "escapes-plan-0": "hybrid-now",
+    "escapes-plan-1": "hybrid-now",
+}
 """What each setting is compared with (on the same tasks)."""
 POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 
@@ -95,6 +116,7 @@ def run(setting: str, views: int, family: str, seeds: list[int]) -> dict:
         "act_max_ms": float(acts.max()),
         "plans": int(getattr(hybrid, "num_plans", 0)),
         "paths": int(getattr(hybrid, "num_paths", 0)),
+        "escape_steps": int(getattr(hybrid.policy, "num_burst_steps", 0)),
         "machine": describe(),
     }
 
@@ -113,7 +135,7 @@ def summary(lines: list[dict]) -> None:
                     f"{setting}: success {np.mean(line['success']):.3f} "
                     f"collisions {np.mean(line['collided']):.3f} "
                     f"act median {line['act_median_ms']:.2f} ms p99 {line['act_p99_ms']:.0f} ms "
-                    f"max {line['act_max_ms'] / 1e3:.2f} s"
+                    f"max {line['act_max_ms'] / 1e3:.2f} s, {line['plans']} plans"
                 )
                 if committed is not None:
                     same = np.mean(np.equal(committed["success"], line["success"]))
@@ -132,7 +154,10 @@ def main() -> None:
     parser.add_argument("--num-blocked", type=int, default=300)
     parser.add_argument("--num-standard", type=int, default=100)
     parser.add_argument(
-        "--offset", type=int, default=None, help="default: 50000 for hybrid*, else 40000"
+        "--offset",
+        type=int,
+        default=None,
+        help="default: 50000 for hybrid and hybrid-checks, 400000 for session 41's, else 40000",
     )
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()

@@ -12,6 +12,13 @@ most `MAX_PLANS` plans an episode). Without a path the policy keeps acting. The 
 happens inside `act`, on the step that found the policy stuck (up to `PLAN_TIME_S`);
 `episode_plan_time_s` sums it over the episode.
 
+When the policy inside escapes from stalls itself (`stall.StallBurst`: a few steps of a random
+command), the planner waits its turn: it plans only once the policy has begun
+`escapes_before_plan` escapes in the episode, and each escape restarts its stall window, so
+that an escape has `STUCK_STEPS` steps to make progress before a plan replaces it. Plans are
+then rarer (the steps that plan are the ones over the act aim) and the escapes stay as a way
+out where no path is found (`DepthGuard(planner=True, escapes=True)`).
+
 Nothing privileged is read: the depth images, joints and goal of the observation, the
 cameras' fixed poses and the arm's kinematics. RRT with the full scene model (the `rrt`
 baseline) knows the obstacles exactly; this planner knows only what the cameras have shown.
@@ -45,6 +52,9 @@ MAX_PLANS = 3
 PLAN_TIME_S = 1.0
 """RRT-Connect's budget per plan, shared by the goal candidates."""
 MAX_GOAL_CANDIDATES = 4
+ESCAPES_BEFORE_PLAN = 1
+"""With escapes inside (`DepthGuard(planner=True, escapes=True)`): escapes begun in an episode
+before the planner may plan."""
 SIMPLIFY_CHECKS = 1_000
 """With a budget in checks (`plan_checks`): the simplification's budget, also in checks (about
 0.1 s of checks on the depth map on one core here, half the time-budgeted simplification's
@@ -63,9 +73,11 @@ class DepthShieldPlanner(DepthShield):
     `plan_checks` > 0: each plan may spend this many validity checks (shared by the goal
     candidates) instead of `PLAN_TIME_S`, the simplification `SIMPLIFY_CHECKS`, and the path
     is re-checked at `RECHECK_RESOLUTION_RAD`: the plans, and so the episodes, then do not
-    depend on the machine's speed or load. `shield_options`: the rest of `DepthShield`'s
-    options (`sliding`, `extrude_m`, `shadow_m`, `shadow_behind_surfaces`, `bridge_m`,
-    `fine_depth_size`), passed on as they are.
+    depend on the machine's speed or load. `escapes_before_plan`: when `policy` escapes from
+    stalls itself (it counts `episode_bursts`, as `stall.StallBurst`), the escapes it must have
+    begun in an episode before a plan (each escape also restarts the stall window).
+    `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`, `shadow_m`,
+    `shadow_behind_surfaces`, `bridge_m`, `fine_depth_size`), passed on as they are.
     """
 
     def __init__(
@@ -79,9 +91,13 @@ class DepthShieldPlanner(DepthShield):
         rrt: RRTConfig | None = None,
         plan_margin_m: float | None = None,
         plan_checks: int = 0,
+        escapes_before_plan: int = ESCAPES_BEFORE_PLAN,
         **shield_options: Any,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
+        if escapes_before_plan < 0:
+            raise ValueError(f"escapes_before_plan must be >= 0, got {escapes_before_plan}")
+        self.escapes_before_plan = escapes_before_plan
         self.plan_margin_m = margin_m if plan_margin_m is None else plan_margin_m
         if not 0 <= self.plan_margin_m < float("inf"):
             raise ValueError(f"plan_margin_m must be a number >= 0, got {plan_margin_m}")
@@ -106,6 +122,7 @@ class DepthShieldPlanner(DepthShield):
         self.waypoints: np.ndarray | None = None
         self._next = 0
         self._plans = 0
+        self._escapes = 0  # escapes the policy inside has begun this episode
         self.episode_plan_time_s = 0.0
 
     def reset(self, env: Any | None = None) -> None:
@@ -116,7 +133,15 @@ class DepthShieldPlanner(DepthShield):
         joints = self.observe(obs)
         goal = np.asarray(obs["desired_goal"], np.float64)
         distance = float(np.linalg.norm(np.asarray(obs["achieved_goal"]) - goal))
-        if self.window.stalled(distance) and self._plans < MAX_PLANS:
+        escapes = getattr(self.policy, "episode_bursts", None)
+        if escapes is not None and escapes != self._escapes:
+            self._escapes = escapes  # an escape began last step: its own window
+            self.window.restart()
+        if (
+            self.window.stalled(distance)
+            and self._plans < MAX_PLANS
+            and (escapes is None or escapes >= self.escapes_before_plan)
+        ):
             self._plans += 1
             self.num_plans += 1
             tic = time.perf_counter()
@@ -180,9 +205,11 @@ class DepthGuard:
     pixels' surface, with `fine_depth_size` reading the views' depth from a finer depth
     camera at the same poses (the env's `fine_depth`, see `env_kwargs`), with `plan_checks`
     > 0 giving the planner a budget in validity checks instead of time (`DepthShieldPlanner`),
-    with `escapes` leaving stalls by random escapes inside the shield instead of by a plan
-    (`stall.StallBurst` around the policy: every step a policy step or a random command, plus
-    the shield's checks). The fields are `clamgen eval|render`'s `--depth-*` options."""
+    with `escapes` leaving stalls by random escapes inside the shield (`stall.StallBurst`
+    around the policy: every step a policy step or a random command, plus the shield's
+    checks), instead of by a plan or, with `planner` too, before one: the planner plans only
+    once the policy has begun `escapes_before_plan` escapes in the episode. The fields are
+    `clamgen eval|render`'s `--depth-*` options."""
 
     margin_m: float = MARGIN_M
     planner: bool = False
@@ -192,6 +219,7 @@ class DepthGuard:
     fine_depth_size: int = 0
     plan_checks: int = 0
     escapes: bool = False
+    escapes_before_plan: int = ESCAPES_BEFORE_PLAN
 
     def env_kwargs(self) -> dict[str, int]:
         """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
@@ -199,11 +227,14 @@ class DepthGuard:
 
     def wrap(self, policy, num_views: int, image_size: int) -> DepthShield:
         """`policy` acting through this guard (a ValueError for bad settings)."""
-        if self.escapes and self.planner:
-            raise ValueError("random escapes and the planner are two ways out of a stall: one")
         policy = StallBurst(policy) if self.escapes else policy
         wrapper = DepthShieldPlanner if self.planner else DepthShield
-        planning = {"plan_checks": self.plan_checks} if self.planner else {}
+        planning = {}
+        if self.planner:
+            planning = {
+                "plan_checks": self.plan_checks,
+                "escapes_before_plan": self.escapes_before_plan,
+            }
         return wrapper(
             policy,
             num_views,
@@ -227,6 +258,8 @@ class DepthGuard:
         flags += ["--depth-fine-size", str(self.fine_depth_size)] if self.fine_depth_size else []
         flags += ["--depth-plan-checks", str(self.plan_checks)] if self.plan_checks else []
         flags += ["--depth-escapes"] if self.escapes else []
+        if self.escapes and self.planner and self.escapes_before_plan != ESCAPES_BEFORE_PLAN:
+            flags += ["--depth-escapes-before-plan", str(self.escapes_before_plan)]
         return tuple(flags)
 
     def describe(self) -> str:
@@ -239,7 +272,9 @@ class DepthGuard:
         text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
         checks = f" ({self.plan_checks} checks a plan)" if self.plan_checks else ""
         text += ")" + (f" + planner when stuck{checks}" if self.planner else "")
-        return text + (" + random escapes when stuck" if self.escapes else "")
+        text += " + random escapes when stuck" if self.escapes else ""
+        both = self.escapes and self.planner
+        return text + (f" ({self.escapes_before_plan} before a plan)" if both else "")
 
 
 HYBRID = {

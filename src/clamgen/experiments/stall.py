@@ -186,7 +186,8 @@ class StallBurst:
     burst (if the count has not restarted by then). The random stream restarts from `seed` at
     each reset, so an episode acts the same every time. `choose(rng, obs)`, if given, draws a
     burst's command instead (from the same stream; e.g. among random candidates by what a
-    depth map shows). Counts `num_burst_steps` of `num_steps`."""
+    depth map shows). Counts `num_burst_steps` of `num_steps`, and `episode_bursts`, the bursts
+    begun in the current episode."""
 
     def __init__(
         self,
@@ -228,6 +229,7 @@ class StallBurst:
         self._command = np.zeros(ur5.NUM_JOINTS)
         self._left = 0  # steps of the current burst still to take
         self._since = self.after_steps  # policy steps since the last burst ended
+        self.episode_bursts = 0
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self.num_steps += 1
@@ -238,6 +240,7 @@ class StallBurst:
             else:
                 self._command = np.asarray(self.choose(self._rng, obs), np.float64)
             self._left = self.burst_steps
+            self.episode_bursts += 1
         if self._left:
             self._left -= 1
             self._since = 0
