@@ -23,6 +23,7 @@ import tyro
 
 from clamgen.envs import ENV_IDS
 from clamgen.experiments.policies import BASELINES, SHIPPED_POLICIES, PolicyName, policy_label
+from clamgen.experiments.stall import ESCAPES_BEFORE_PLAN
 
 DESCRIPTION = "CLAMGen: closed-loop UR5 arm motion generation via multi-view vision-based RL."
 # Training presets shipped in clamgen/presets/, by name (`--preset NAME`).
@@ -422,7 +423,12 @@ class EvalConfig:
     joint command, then the policy again, every step through the shield, which stops an escape
     that would touch an obstacle (`stall.StallBurst`, beyond the paper): no step plans. Alone,
     the setting of Table 2's escape rows (`depth_planner.ESCAPES`: the hybrids' shield with the
-    unseen-space test); with --depth-shield-m, added to the shield those options give."""
+    unseen-space test); with --depth-shield-m, added to the shield those options give. With
+    --depth-planner too: the escapes first, the planner once they fail (see
+    --depth-escapes-before-plan), the escapes again where it finds no path."""
+    depth_escapes_before_plan: int = ESCAPES_BEFORE_PLAN
+    """With --depth-escapes and --depth-planner: the random escapes an episode begins before the
+    planner may plan (0: the planner first; `depth_planner.DepthShieldPlanner`)."""
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1]: each step in the same direction and
     this much as long, a slower arm that takes more steps to reach
@@ -541,6 +547,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_fine_size != 0
         or config.depth_plan_checks != 0
         or config.depth_escapes
+        or config.depth_escapes_before_plan != ESCAPES_BEFORE_PLAN
     )
 
 
@@ -590,8 +597,14 @@ def _depth_guard(config):
     bridge_m, checks = config.depth_bridge_m, config.depth_plan_checks
     if checks != 0 and not planner:
         raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
-    if config.depth_escapes and planner:
-        raise SystemExit("--depth-escapes and --depth-planner are two ways out of a stall: one")
+    escapes_first = config.depth_escapes_before_plan
+    if escapes_first != ESCAPES_BEFORE_PLAN and not (config.depth_escapes and planner):
+        raise SystemExit(
+            "--depth-escapes-before-plan needs --depth-escapes and --depth-planner (the two ways "
+            "out of a stall it orders)"
+        )
+    if escapes_first < 0:
+        raise SystemExit(f"--depth-escapes-before-plan must be >= 0, got {escapes_first}")
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
@@ -612,7 +625,15 @@ def _depth_guard(config):
     if checks < 0:
         raise SystemExit(f"--depth-plan-checks must be >= 0, got {checks}")
     return DepthGuard(
-        margin_m, planner, shadow_m, behind_surfaces, bridge_m, fine, checks, config.depth_escapes
+        margin_m,
+        planner,
+        shadow_m,
+        behind_surfaces,
+        bridge_m,
+        fine,
+        checks,
+        config.depth_escapes,
+        escapes_first,
     )
 
 

@@ -3,6 +3,7 @@ true obstacles, the arm's clearance to points, and obstacle-blind IK interpolati
 the obstacles it would hit."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -322,12 +323,72 @@ def test_random_escapes_inside_the_shield_move_a_stuck_policy_without_contact(bl
         runs.append([(r.success, r.steps, r.tip_path_m) for r in records])
     assert runs[0] == runs[1]  # seeded per episode
     assert guard.describe().endswith(" + random escapes when stuck")
-    with pytest.raises(ValueError, match="two ways out of a stall"):
-        DepthGuard(planner=True, escapes=True).wrap(Still(), VIEWS, SIZE)
+
+
+class _PlanLog:
+    """Records, at each of `planner`'s plans, the step of the episode and the escapes its
+    policy (a `StallBurst`) has begun, with the step the latest began."""
+
+    def __init__(self, planner) -> None:
+        self.plans: list[tuple[int, int, int]] = []
+        self.step, self.escapes, self.escape_step = 0, 0, -1
+        plan, act, reset = planner.plan, planner.policy.act, planner.reset
+
+        def logged_plan(joints, goal):
+            self.plans.append((self.step, planner.policy.episode_bursts, self.escape_step))
+            return plan(joints, goal)
+
+        def logged_act(obs):
+            action = act(obs)
+            if planner.policy.episode_bursts != self.escapes:
+                self.escapes, self.escape_step = planner.policy.episode_bursts, self.step
+            return action
+
+        def logged_reset(env=None):
+            reset(env)
+            self.step, self.escapes, self.escape_step = 0, 0, -1
+
+        def count_step(obs):
+            action = planner_act(obs)
+            self.step += 1
+            return action
+
+        planner.plan, planner.policy.act, planner.reset = logged_plan, logged_act, logged_reset
+        planner_act = planner.act
+        planner.act = count_step
+
+
+@pytest.mark.parametrize("escapes_first", [0, 1])
+def test_the_planner_waits_for_the_escapes_it_is_given(blocked_env, escapes_first):
+    pytest.importorskip("ompl.base")
+    from clamgen.experiments.depth_planner import STUCK_STEPS
+    from clamgen.experiments.stall import StallBurst
+
+    guard = DepthGuard(planner=True, escapes=True, escapes_before_plan=escapes_first)
+    both = guard.wrap(Still(), VIEWS, SIZE)
+    assert isinstance(both, DepthShieldPlanner) and isinstance(both.policy, StallBurst)
+    log = _PlanLog(both)
+    records = evaluate(blocked_env, both, TEST_SEEDS.seeds(3))
+    # A policy that never moves stalls at once. With escapes first, each plan comes only after
+    # that many escapes, and a full stall window after the latest began (it has its steps to
+    # make progress); with none first, the first plan comes before any escape.
+    assert log.plans and both.num_paths >= 1
+    for step, escapes, escape_step in log.plans:
+        assert escapes >= escapes_first
+        if escapes:
+            assert step - escape_step >= STUCK_STEPS
+    if escapes_first == 0:
+        assert any(escapes == 0 for _, escapes, _ in log.plans)
+    assert not any(r.collided for r in records)
+    assert guard.describe().endswith(
+        f" + planner when stuck + random escapes when stuck ({escapes_first} before a plan)"
+    )
+    with pytest.raises(ValueError, match="escapes_before_plan"):
+        DepthShieldPlanner(Still(), VIEWS, SIZE, escapes_before_plan=-1)
 
 
 @pytest.mark.parametrize("views", sorted(ESCAPES))
-def test_random_escapes_alone_are_the_escape_rows_setting_and_refuse_the_planner(views):
+def test_random_escapes_alone_are_the_escape_rows_setting(views):
     config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-escapes"])
     assert _wants_depth_shield(config)
     env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
@@ -341,9 +402,20 @@ def test_random_escapes_alone_are_the_escape_rows_setting_and_refuse_the_planner
     render = tyro.cli(RenderConfig, args=["--policy", "residual-3views", "--depth-escapes"])
     assert _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, render)[1] == source
     for args, message in (
-        (["--depth-shield-m", "0.01", "--depth-planner", "--depth-escapes"], "two ways out"),
         (["--depth-hybrid", "--depth-escapes"], "--depth-hybrid sets the depth options"),
         (["--depth-escapes", "--depth-fine-size", "128"], "needs --depth-shield-m"),
+        (["--depth-escapes-before-plan", "0"], "needs --depth-escapes and --depth-planner"),
+        (
+            ["--depth-shield-m", "0.01", "--depth-escapes", "--depth-escapes-before-plan", "2"],
+            "needs --depth-escapes and --depth-planner",
+        ),
+        (
+            [
+                *("--depth-shield-m", "0.01", "--depth-planner", "--depth-escapes"),
+                *("--depth-escapes-before-plan", "-1"),
+            ],
+            "must be >= 0",
+        ),
     ):
         config = tyro.cli(EvalConfig, args=["--table", "2", *args])
         with pytest.raises(SystemExit, match=message):
@@ -355,7 +427,8 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     guard = HYBRID[views]
     finer = DepthGuard(0.02, True, 0.05, False, 0.03, 128, 5000)
     escaping = DepthGuard(0.01, fine_depth_size=128, escapes=True)
-    for each in (guard, finer, escaping):
+    both = [replace(ESCAPES[views], planner=True, escapes_before_plan=first) for first in (0, 1, 2)]
+    for each in (guard, finer, escaping, *both):
         config = tyro.cli(EvalConfig, args=["--table", "2", *each.flags()])
         assert _depth_guard(config) == each
     config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid"])

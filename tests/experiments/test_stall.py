@@ -121,8 +121,9 @@ def test_burst_takes_random_steps_once_stalled_then_hands_back():
     assert random_steps == [2, 3, 4, 7, 8, 9]
     assert np.array_equal(acted[2], acted[4]) and not np.array_equal(acted[2], acted[7])
     assert all(np.abs(acted[i]).max() <= 0.5 for i in random_steps)
-    assert (burst.num_steps, burst.num_burst_steps) == (10, 6)
+    assert (burst.num_steps, burst.num_burst_steps, burst.episode_bursts) == (10, 6, 2)
     burst.reset()  # the same episode acts the same again
+    assert burst.episode_bursts == 0
     again = [burst.act(_obs(0.3)) for _ in range(10)]
     assert all(np.array_equal(a, b) for a, b in zip(acted, again, strict=True))
 

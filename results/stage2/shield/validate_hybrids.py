@@ -17,14 +17,14 @@ has (fewer collisions?).
 
 Each hybrid (`BEFORE[v]`, v = 3, 2, 1 views: `depth_planner.HYBRID` as it was before these
 protocols, with the shipped policies; and its variants; the `hybrid*` settings start from
-`HYBRID[v]` as it is now) acts on
-`--num-blocked` blocked and `--num-standard` standard validation tasks from `--offset` into
-the validation range; the same tasks for every setting of a block. Session 41 (block 400000): the hybrids and the
-escape rows as committed, and the escape rows' shield with the planner too, planning only
-after 0 or 1 random escapes in the episode (`DepthGuard(planner=True, escapes=True)`). Appends one JSON line per (views,
-family) to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act;
-per run: the act time's median, 99th percentile and maximum) and skips what is there;
-`--summary` prints the comparison from those files.
+`HYBRID[v]` as it is now) acts on `--num-blocked` blocked and `--num-standard` standard
+validation tasks from `--offset` into the validation range; the same tasks for every setting
+of a block. Session 41 (block 400000): the hybrids and the escape rows as committed, and the
+escape rows' shield with the planner too, planning only after 0 or 1 random escapes in the
+episode (`DepthGuard(planner=True, escapes=True)`). Appends one JSON line per (views, family)
+to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act; per run:
+the act time's median, 99th percentile and maximum, plans, escape steps) and skips what is
+there; `--summary` prints the comparison from those files.
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ from clamgen.envs.reach_env import (
     SUCCESS_DISTANCE_M,
 )
 from clamgen.experiments.depth_shield import MARGIN_M, DepthShield
-from clamgen.experiments.stall import WINDOW_STEPS, ProgressWindow, StallBurst
+from clamgen.experiments.stall import ESCAPES_BEFORE_PLAN, WINDOW_STEPS, ProgressWindow, StallBurst
 from clamgen.robot import ur5
 from clamgen.robot.kinematics import solve_tip_position, wrap_joints
 
@@ -52,9 +52,6 @@ MAX_PLANS = 3
 PLAN_TIME_S = 1.0
 """RRT-Connect's budget per plan, shared by the goal candidates."""
 MAX_GOAL_CANDIDATES = 4
-ESCAPES_BEFORE_PLAN = 1
-"""With escapes inside (`DepthGuard(planner=True, escapes=True)`): escapes begun in an episode
-before the planner may plan."""
 SIMPLIFY_CHECKS = 1_000
 """With a budget in checks (`plan_checks`): the simplification's budget, also in checks (about
 0.1 s of checks on the depth map on one core here, half the time-budgeted simplification's

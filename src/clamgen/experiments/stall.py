@@ -48,6 +48,11 @@ BURST_SCALE = 1.0
 range, `MAX_JOINT_DELTA_RAD` a step)."""
 
 
+ESCAPES_BEFORE_PLAN = 1
+"""With a planner around `StallBurst` (`depth_planner.DepthGuard(planner=True, escapes=True)`):
+the escapes an episode begins before the planner may plan."""
+
+
 WINDOW_STEPS = 10
 """`ProgressWindow`: steps without `WINDOW_PROGRESS_M` of progress before a stall (the hybrids'
 test rows were measured with 10 and 1 cm)."""

@@ -23,6 +23,7 @@ from tqdm import tqdm
 from clamgen.envs import ENV_IDS, ENV_TASKS, ReachEnv
 from clamgen.experiments.evaluate import run_episode
 from clamgen.experiments.policies import PolicyName
+from clamgen.experiments.stall import ESCAPES_BEFORE_PLAN
 from clamgen.sim import constants as C
 from clamgen.sim.render import MultiViewRenderer
 
@@ -90,8 +91,11 @@ class RenderConfig:
     """With --depth-planner: a budget of this many validity checks a plan instead of 1 s, as
     `clamgen eval --depth-plan-checks`. 0: the time budget."""
     depth_escapes: bool = False
-    """Instead of --depth-planner: random escapes from stalls inside the shield, as `clamgen
-    eval --depth-escapes` (alone: the escape rows' setting)."""
+    """Random escapes from stalls inside the shield, as `clamgen eval --depth-escapes` (alone:
+    the escape rows' setting; with --depth-planner, before its plans)."""
+    depth_escapes_before_plan: int = ESCAPES_BEFORE_PLAN
+    """With --depth-escapes and --depth-planner: the escapes an episode begins before the
+    planner may plan, as `clamgen eval --depth-escapes-before-plan`."""
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1] (a slower arm), as `clamgen eval
     --action-scale`. 1: as trained."""
