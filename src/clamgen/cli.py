@@ -424,11 +424,13 @@ class EvalConfig:
     that would touch an obstacle (`stall.StallBurst`, beyond the paper): no step plans. Alone,
     the setting of Table 2's escape rows (`depth_planner.ESCAPES`: the hybrids' shield with the
     unseen-space test); with --depth-shield-m, added to the shield those options give. With
-    --depth-planner too: the escapes first, the planner once they fail (see
-    --depth-escapes-before-plan), the escapes again where it finds no path."""
+    --depth-planner too: the planner when stuck and the escapes where it finds no path
+    (`depth_planner.ESCAPES_PLANNER`, alone; Table 2's 1-view row "... random escapes where
+    the planner finds no path"), or the escapes first (--depth-escapes-before-plan)."""
     depth_escapes_before_plan: int = ESCAPES_BEFORE_PLAN
     """With --depth-escapes and --depth-planner: the random escapes an episode begins before the
-    planner may plan (0: the planner first; `depth_planner.DepthShieldPlanner`)."""
+    planner may plan (0: the planner first, chosen on validation tasks;
+    `depth_planner.DepthShieldPlanner`)."""
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1]: each step in the same direction and
     this much as long, a slower arm that takes more steps to reach
@@ -562,14 +564,28 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     and, with any other depth option, a margin is given."""
     from importlib.util import find_spec
 
-    from clamgen.experiments.depth_planner import ESCAPES, HYBRID
+    from clamgen.experiments.depth_planner import ESCAPES, ESCAPES_PLANNER, HYBRID
 
     if config.depth_hybrid and _depth_options_given(config):
         raise SystemExit("--depth-hybrid sets the depth options itself: drop the others")
+    # --depth-escapes without a shield's options (with --depth-planner or not): the escape
+    # rows' shield.
     escapes_alone = config.depth_escapes and not _depth_options_given(
-        dataclasses.replace(config, depth_escapes=False)
+        dataclasses.replace(
+            config,
+            depth_escapes=False,
+            depth_planner=False,
+            depth_escapes_before_plan=ESCAPES_BEFORE_PLAN,
+        )
     )
-    preset = HYBRID if config.depth_hybrid else ESCAPES if escapes_alone else None
+    preset = HYBRID if config.depth_hybrid else None
+    if escapes_alone:
+        first = _escapes_first(config)
+        preset = {
+            views: dataclasses.replace(guard, escapes_before_plan=first)
+            for views, guard in ESCAPES_PLANNER.items()
+        }
+        preset = preset if config.depth_planner else ESCAPES
     guard = None if preset else _depth_guard(config)
     views = env_kwargs.get("num_views", 0)
     if not views or env_kwargs.get("obs_mode") != "both":
@@ -597,14 +613,7 @@ def _depth_guard(config):
     bridge_m, checks = config.depth_bridge_m, config.depth_plan_checks
     if checks != 0 and not planner:
         raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
-    escapes_first = config.depth_escapes_before_plan
-    if escapes_first != ESCAPES_BEFORE_PLAN and not (config.depth_escapes and planner):
-        raise SystemExit(
-            "--depth-escapes-before-plan needs --depth-escapes and --depth-planner (the two ways "
-            "out of a stall it orders)"
-        )
-    if escapes_first < 0:
-        raise SystemExit(f"--depth-escapes-before-plan must be >= 0, got {escapes_first}")
+    escapes_first = _escapes_first(config)
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:
             raise SystemExit("--depth-shadow-m needs --depth-shield-m (the shield it adds to)")
@@ -635,6 +644,19 @@ def _depth_guard(config):
         config.depth_escapes,
         escapes_first,
     )
+
+
+def _escapes_first(config) -> int:
+    """`config`'s --depth-escapes-before-plan; SystemExit when it has nothing to order."""
+    first = config.depth_escapes_before_plan
+    if first != ESCAPES_BEFORE_PLAN and not (config.depth_escapes and config.depth_planner):
+        raise SystemExit(
+            "--depth-escapes-before-plan needs --depth-escapes and --depth-planner (the two ways "
+            "out of a stall it orders)"
+        )
+    if first < 0:
+        raise SystemExit(f"--depth-escapes-before-plan must be >= 0, got {first}")
+    return first
 
 
 def _with_action_scale(policy, source: str, scale: float):

@@ -15,7 +15,13 @@ from clamgen.baselines import IKInterpolationPolicy
 from clamgen.cli import EvalConfig, _depth_guard, _wants_depth_shield, _with_depth_shield
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import TEST_SEEDS
-from clamgen.experiments.depth_planner import ESCAPES, HYBRID, DepthGuard, DepthShieldPlanner
+from clamgen.experiments.depth_planner import (
+    ESCAPES,
+    ESCAPES_PLANNER,
+    HYBRID,
+    DepthGuard,
+    DepthShieldPlanner,
+)
 from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthShield, _in_boxes
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.tables import _PlanTimeRecorder
@@ -380,9 +386,8 @@ def test_the_planner_waits_for_the_escapes_it_is_given(blocked_env, escapes_firs
     if escapes_first == 0:
         assert any(escapes == 0 for _, escapes, _ in log.plans)
     assert not any(r.collided for r in records)
-    assert guard.describe().endswith(
-        f" + planner when stuck + random escapes when stuck ({escapes_first} before a plan)"
-    )
+    ending = ("where the planner finds no path", "when stuck (1 before a plan)")[escapes_first]
+    assert guard.describe().endswith(f" + planner when stuck + random escapes {ending}")
     with pytest.raises(ValueError, match="escapes_before_plan"):
         DepthShieldPlanner(Still(), VIEWS, SIZE, escapes_before_plan=-1)
 
@@ -404,10 +409,18 @@ def test_random_escapes_alone_are_the_escape_rows_setting(views):
     for args, message in (
         (["--depth-hybrid", "--depth-escapes"], "--depth-hybrid sets the depth options"),
         (["--depth-escapes", "--depth-fine-size", "128"], "needs --depth-shield-m"),
-        (["--depth-escapes-before-plan", "0"], "needs --depth-escapes and --depth-planner"),
+        (["--depth-escapes-before-plan", "1"], "needs --depth-escapes and --depth-planner"),
+        (
+            ["--depth-escapes", "--depth-escapes-before-plan", "2"],
+            "needs --depth-escapes and --depth-planner",
+        ),
         (
             ["--depth-shield-m", "0.01", "--depth-escapes", "--depth-escapes-before-plan", "2"],
             "needs --depth-escapes and --depth-planner",
+        ),
+        (
+            ["--depth-planner", "--depth-escapes", "--depth-escapes-before-plan", "-1"],
+            "must be >= 0",
         ),
         (
             [
@@ -420,6 +433,24 @@ def test_random_escapes_alone_are_the_escape_rows_setting(views):
         config = tyro.cli(EvalConfig, args=["--table", "2", *args])
         with pytest.raises(SystemExit, match=message):
             _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+
+
+@pytest.mark.parametrize("views", sorted(ESCAPES_PLANNER))
+def test_escapes_with_the_planner_alone_are_the_escape_rows_shield_planning_first(views):
+    env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
+    for extra, first in (([], 0), (["--depth-escapes-before-plan", "2"], 2)):
+        args = ["--table", "2", "--depth-escapes", "--depth-planner", *extra]
+        config = tyro.cli(EvalConfig, args=args)
+        shielded, source, kwargs = _with_depth_shield(
+            IKInterpolationPolicy(), "", env_kwargs, config
+        )
+        guard = replace(ESCAPES_PLANNER[views], escapes_before_plan=first)
+        assert guard == replace(ESCAPES[views], planner=True, escapes_before_plan=first)
+        assert source == guard.describe() and kwargs == env_kwargs | guard.env_kwargs()
+        assert isinstance(shielded, DepthShieldPlanner)
+        assert shielded.escapes_before_plan == first
+        config = tyro.cli(EvalConfig, args=["--table", "2", *guard.flags()])
+        assert _depth_guard(config) == guard
 
 
 @pytest.mark.parametrize("views", sorted(HYBRID))

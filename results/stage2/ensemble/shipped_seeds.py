@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from clamgen.experiments.aggregate import seed_summary, write_seed_set
-from clamgen.experiments.depth_planner import ESCAPES, HYBRID
+from clamgen.experiments.depth_planner import ESCAPES, ESCAPES_PLANNER, HYBRID
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
@@ -60,11 +60,14 @@ WORDS = {3: "3 RGBD views", 2: "2 RGBD views", 1: "1 RGBD view"}
 SHIPPED = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 POOLS = {3: "d3-pool4", 2: "d2-pool5", 1: "d1-pool5"}
 """The pooled data's run-name stem by number of views (`seed_lane.sh`)."""
-KINDS = ("alone", "shielded", "hybrid", "escapes")
+KINDS = ("alone", "shielded", "hybrid", "escapes", "escapes-planner")
 """How a seed's student acts: alone; through the hybrid's depth shield (1 cm, 128-pixel depth
 cameras, for one view the unseen-space test) without its planner; as the hybrid; through the
 shield with the unseen-space test and random escapes from stalls instead of the planner
-(`depth_planner.ESCAPES`, session 31)."""
+(`depth_planner.ESCAPES`, session 31); through that shield with the planner when stuck and the
+escapes where it finds no path (`depth_planner.ESCAPES_PLANNER`, session 41, one view only)."""
+VIEWS_OF_KIND = {"escapes-planner": (1,)}
+"""The kinds evaluated for some numbers of views only (the others: every one)."""
 SHIPPED_ROWS = {
     (3, "alone"): HERE / "3v-dagger+2_test.json",
     (2, "alone"): HERE / "2v-dagger+2_test.json",
@@ -72,15 +75,25 @@ SHIPPED_ROWS = {
     **{(v, "shielded"): TABLE2 / f"shielded_fine_{SHIPPED[v]}.json" for v in SHIPPED},
     **{(v, "hybrid"): TABLE2 / f"hybrid_{SHIPPED[v]}.json" for v in SHIPPED},
     **{(v, "escapes"): TABLE2 / f"escapes_{SHIPPED[v]}.json" for v in SHIPPED},
+    (1, "escapes-planner"): TABLE2 / "escapes_planner_residual-1view.json",
 }
 """The shipped students' own test rows (seed 5), alone, shielded and in their hybrids."""
-STEMS = {"alone": "student", "shielded": "shielded", "hybrid": "hybrid", "escapes": "escapes"}
+STEMS = {
+    "alone": "student",
+    "shielded": "shielded",
+    "hybrid": "hybrid",
+    "escapes": "escapes",
+    "escapes-planner": "escapes_planner",
+}
 """A seed's row file stem by kind (`seeds/<stem><V>_seed<S>.json`)."""
 NAME_ENDINGS = {
     "alone": ", alone",
     "shielded": " + the hybrid's depth shield, no planner",
     "hybrid": " + the hybrid's depth shield and planner",
     "escapes": " + the depth shield with random escapes when stuck, no planner",
+    "escapes-planner": (
+        " + the depth shield with the planner when stuck and random escapes where it finds no path"
+    ),
 }
 """How a seed's row name ends, by kind."""
 
@@ -95,6 +108,7 @@ KIND_WORDS = {
     "shielded": "+ depth shield (128-pixel depth cameras)",
     "hybrid": "+ depth shield and planner when stuck (the hybrid)",
     "escapes": "+ depth shield and random escapes when stuck (no planner)",
+    "escapes-planner": "+ depth shield, planner when stuck, random escapes where it finds no path",
 }
 
 
@@ -114,6 +128,8 @@ def _flags(views: int, kind: str) -> list[str]:
         return []
     if kind == "escapes":
         return list(ESCAPES[views].flags())
+    if kind == "escapes-planner":
+        return list(ESCAPES_PLANNER[views].flags())
     return list(dataclasses.replace(HYBRID[views], planner=False).flags())
 
 
@@ -121,18 +137,34 @@ def _out(views: int, seed: int, kind: str) -> Path:
     return OUT / f"{STEMS[kind]}{views}_seed{seed}"
 
 
+def kinds(views: int) -> tuple[str, ...]:
+    return tuple(kind for kind in KINDS if views in VIEWS_OF_KIND.get(kind, (views,)))
+
+
+def policy_file(views: int, seed: int) -> Path | None:
+    """A seed's student: in its run directory, else its committed copy (None: neither)."""
+    for path in (
+        run_dir(views, seed) / "policy_iteration1.pt",
+        OUT / f"d{views}_seed{seed}_policy.pt",
+    ):
+        if path.is_file():
+            return path
+    return None
+
+
 def _evaluate(views: int, seed: int) -> None:
     source = run_dir(views, seed)
     OUT.mkdir(exist_ok=True)
-    shutil.copyfile(source / "continue.json", OUT / f"d{views}_seed{seed}.continue.json")
-    offline = source.parent / source.name.removesuffix("-dagger") / "offline.json"
-    shutil.copyfile(offline, OUT / f"d{views}_seed{seed}.offline.json")
-    for kind in KINDS:
+    if (source / "continue.json").is_file():
+        shutil.copyfile(source / "continue.json", OUT / f"d{views}_seed{seed}.continue.json")
+        offline = source.parent / source.name.removesuffix("-dagger") / "offline.json"
+        shutil.copyfile(offline, OUT / f"d{views}_seed{seed}.offline.json")
+    for kind in kinds(views):
         out = _out(views, seed, kind)
         if out.with_suffix(".json").is_file():
             continue
         command = [sys.executable, "-m", "clamgen", "eval", "--table", "2"]
-        command += ["--policy", str((source / "policy_iteration1.pt").relative_to(ROOT))]
+        command += ["--policy", str(policy_file(views, seed).relative_to(ROOT))]
         command += _flags(views, kind)
         command += ["--num-tasks", "200", "--name", _name(views, kind)]
         command += ["--out", str(out.relative_to(ROOT))]
@@ -165,7 +197,7 @@ def aims_table() -> str:
     ]
     for views in sorted(SEEDS, reverse=True):
         aim = BLOCKED_AIMS[views]
-        for kind in KINDS:
+        for kind in kinds(views):
             found = _rows(views, kind)
             rows = [json.loads(path.read_text())["rows"] for _, path in found]
             by = [{row["family"]: row for row in seed_rows} for seed_rows in rows]
@@ -185,7 +217,7 @@ def aims_table() -> str:
 
 def seed_rows(views: int) -> dict[str, list[tuple[int, Path]]]:
     """{row name: [(seed, its test row JSON), ...]} for each way of acting."""
-    return {_name(views, kind): _rows(views, kind) for kind in KINDS}
+    return {_name(views, kind): _rows(views, kind) for kind in kinds(views)}
 
 
 def summarize(views: int) -> str:
@@ -209,7 +241,8 @@ def write_seeds() -> Path:
     compare = [
         (_name(views, kind), _name(views, "alone"))
         for views in sorted(SEEDS, reverse=True)
-        for kind in ("hybrid", "shielded", "escapes")
+        for kind in ("hybrid", "shielded", "escapes", "escapes-planner")
+        if kind in kinds(views)
     ]
     return write_seed_set(rows, OUT / "summary.json", command, note, compare)
 
@@ -227,8 +260,8 @@ def main() -> None:
             for seed in SEEDS[views]:
                 if args.seeds and seed not in args.seeds:
                     continue
-                record = run_dir(views, seed) / "continue.json"
-                if record.is_file():  # (written when the continuation has finished)
+                # (a run's policy is there once its continuation has finished)
+                if policy_file(views, seed) is not None:
                     _evaluate(views, seed)
     text = "\n".join(summarize(views) for views in sorted(SEEDS, reverse=True))
     print(text)

@@ -135,7 +135,7 @@ def summary(lines: list[dict]) -> None:
                     f"{setting}: success {np.mean(line['success']):.3f} "
                     f"collisions {np.mean(line['collided']):.3f} "
                     f"act median {line['act_median_ms']:.2f} ms p99 {line['act_p99_ms']:.0f} ms "
-                    f"max {line['act_max_ms'] / 1e3:.2f} s, {line['plans']} plans"
+                    f"max {line['act_max_ms'] / 1e3:.2f} s, {line.get('plans', '-')} plans"
                 )
                 if committed is not None:
                     same = np.mean(np.equal(committed["success"], line["success"]))
