@@ -14,6 +14,8 @@ has (fewer collisions?).
     python results/stage2/shield/validate_hybrids.py --setting escapes         # block 400000
     python results/stage2/shield/validate_hybrids.py --setting escapes-plan-0
     python results/stage2/shield/validate_hybrids.py --setting escapes-plan-1
+    python results/stage2/shield/validate_hybrids.py --setting hybrid-410 --views 3 2
+    python results/stage2/shield/validate_hybrids.py --setting hybrid-escapes --views 3 2
 
 Each hybrid (`BEFORE[v]`, v = 3, 2, 1 views: `depth_planner.HYBRID` as it was before these
 protocols, with the shipped policies; and its variants; the `hybrid*` settings start from
@@ -21,7 +23,8 @@ protocols, with the shipped policies; and its variants; the `hybrid*` settings s
 validation tasks from `--offset` into the validation range; the same tasks for every setting
 of a block. Session 41 (block 400000): the hybrids and the escape rows as committed, and the
 escape rows' shield with the planner too, planning only after 0 or 1 random escapes in the
-episode (`DepthGuard(planner=True, escapes=True)`). Appends one JSON line per (views, family)
+episode (`DepthGuard(planner=True, escapes=True)`); then (block 410000) the 3- and 2-view
+hybrids with random escapes where their planner finds no path. Appends one JSON line per (views, family)
 to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act; per run:
 the act time's median, 99th percentile and maximum, plans, escape steps) and skips what is
 there; `--summary` prints the comparison from those files.
@@ -70,9 +73,18 @@ SETTINGS = {
     "escapes": lambda views: ESCAPES[views],
     "escapes-plan-0": lambda views: replace(ESCAPES[views], planner=True, escapes_before_plan=0),
     "escapes-plan-1": lambda views: replace(ESCAPES[views], planner=True, escapes_before_plan=1),
+    # Session 41, second protocol (--offset 410000): the hybrids, and the hybrids with random
+    # escapes where the planner finds no path (their own shield: no unseen-space test from 3
+    # and 2 views).
+    "hybrid-410": lambda views: HYBRID[views],
+    "hybrid-escapes": lambda views: replace(HYBRID[views], escapes=True),
 }
 SESSION_41 = ("hybrid-now", "escapes", "escapes-plan-0", "escapes-plan-1")
-OFFSET = {"hybrid": 50_000, "hybrid-checks": 50_000} | {name: 400_000 for name in SESSION_41}
+OFFSET = (
+    {"hybrid": 50_000, "hybrid-checks": 50_000}
+    | {name: 400_000 for name in SESSION_41}
+    | {"hybrid-410": 410_000, "hybrid-escapes": 410_000}
+)
 """Where in the validation range each setting's tasks start (40000 for the others)."""
 BASELINE = {
     "checks": "time",
@@ -82,6 +94,7 @@ BASELINE = {
     "escapes": "hybrid-now",
     "escapes-plan-0": "hybrid-now",
     "escapes-plan-1": "hybrid-now",
+    "hybrid-escapes": "hybrid-410",
 }
 """What each setting is compared with (on the same tasks)."""
 POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
@@ -157,7 +170,8 @@ def main() -> None:
         "--offset",
         type=int,
         default=None,
-        help="default: 50000 for hybrid and hybrid-checks, 400000 for session 41's, else 40000",
+        help="default: 50000 for hybrid and hybrid-checks, 400000 and 410000 for session 41's, "
+        "else 40000",
     )
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
