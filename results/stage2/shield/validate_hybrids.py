@@ -24,10 +24,10 @@ validation tasks from `--offset` into the validation range; the same tasks for e
 of a block. Session 41 (block 400000): the hybrids and the escape rows as committed, and the
 escape rows' shield with the planner too, planning only after 0 or 1 random escapes in the
 episode (`DepthGuard(planner=True, escapes=True)`); then (block 410000) the 3- and 2-view
-hybrids with random escapes where their planner finds no path. Appends one JSON line per (views, family)
-to validate_hybrids_SETTING.jsonl (per task: success, collision, steps, longest act; per run:
-the act time's median, 99th percentile and maximum, plans, escape steps) and skips what is
-there; `--summary` prints the comparison from those files.
+hybrids with random escapes where their planner finds no path. Appends one JSON line per
+(views, family) to validate_hybrids_SETTING.jsonl (per task: success, collision, steps,
+longest act; per run: the act time's median, 99th percentile and maximum, plans, escape steps)
+and skips what is there; `--summary` prints the comparison from those files.
 """
 
 from __future__ import annotations
