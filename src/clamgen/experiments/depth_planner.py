@@ -13,11 +13,11 @@ happens inside `act`, on the step that found the policy stuck (up to `PLAN_TIME_
 `episode_plan_time_s` sums it over the episode.
 
 When the policy inside escapes from stalls itself (`stall.StallBurst`: a few steps of a random
-command), the planner waits its turn: it plans only once the policy has begun
-`escapes_before_plan` escapes in the episode, and each escape restarts its stall window, so
-that an escape has `STUCK_STEPS` steps to make progress before a plan replaces it. Plans are
-then rarer (the steps that plan are the ones over the act aim) and the escapes stay as a way
-out where no path is found (`DepthGuard(planner=True, escapes=True)`).
+command; `DepthGuard(planner=True, escapes=True)`), the escapes are the way out where the
+planner finds no path (or has used its plans). With `escapes_before_plan` K > 0 they also go
+first: the planner plans only once the policy has begun K escapes in the episode. Each escape
+restarts the planner's stall window, so that it has `STUCK_STEPS` steps to make progress
+before a plan replaces it.
 
 Nothing privileged is read: the depth images, joints and goal of the observation, the
 cameras' fixed poses and the arm's kinematics. RRT with the full scene model (the `rrt`
