@@ -2,6 +2,7 @@
 
 import json
 import platform
+import time
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from clamgen.cli import EvalConfig, evaluate_table
 from clamgen.experiments.config import TEST_SEEDS
 from clamgen.experiments.evaluate import EpisodeRecord
 from clamgen.experiments.tables import (
+    ACT_AIM_MS,
     Z_95,
     ObstacleRow,
     PairedCount,
@@ -19,6 +21,7 @@ from clamgen.experiments.tables import (
     table1,
     table1_markdown,
     table2_markdown,
+    table2_row,
     wilson_interval,
     write_table1,
 )
@@ -207,3 +210,28 @@ def test_table2_command_runs_both_families_on_test_seeds(tmp_path):
     assert (tmp_path / "ik.md").read_text() == table2_markdown(loaded) + "\n"
     with pytest.raises(SystemExit, match="families"):
         evaluate_table(EvalConfig(table=2, policy="ik", num_tasks=1, families=("hard",)))
+
+
+class _SlowEveryOtherAct:
+    """Stands still, sleeping past the act aim on every other act."""
+
+    def __init__(self) -> None:
+        self.acts = 0
+
+    def reset(self, env=None) -> None:
+        pass
+
+    def act(self, obs):
+        self.acts += 1
+        if self.acts % 2:
+            time.sleep(2 * ACT_AIM_MS / 1e3)
+        return np.zeros(6, np.float32)
+
+
+def test_table2_rows_record_the_share_of_acts_over_the_aim():
+    slow = _SlowEveryOtherAct()
+    row = table2_row("slow", slow, num_tasks=2, family="obstacles")
+    # Every other act sleeps twice the aim; the others return at once.
+    assert slow.acts == 200  # two episodes to the time limit
+    assert row.act_share_over_aim == pytest.approx(0.5, abs=0.05)
+    assert row.act_max_ms > 2 * ACT_AIM_MS

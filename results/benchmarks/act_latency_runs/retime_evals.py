@@ -7,8 +7,9 @@ Each row's committed Table 2 evaluation (the shipped students, seed 5) runs agai
 command, one process at a time (run it with nothing else on the machine), into `--out`. The
 act medians are this machine's, timed between rendered steps as `clamgen eval` times them; the
 outcomes are compared with the committed rows task by task (the same on a machine whose convs
-run in the same precision, and for the hybrids only where no plan ran out of time). Prints and
-writes `--out`/summary.md. A shipped student evaluated from its run directory (since deleted)
+run in the same precision, and for the hybrids only where no plan ran out of time). Also the
+blocked tasks' act tail here: the 99th percentile, the longest act and the share of acts over
+the 2 ms aim (`ObstacleRow.act_share_over_aim`). Prints and writes `--out`/summary.md. A shipped student evaluated from its run directory (since deleted)
 runs under its shipped name: the same file.
 """
 
@@ -29,8 +30,13 @@ ROWS = {
     "3v-shielded": ("results/table2/shielded_fine_residual-3views.json", None),
     "3v-escapes": ("results/table2/escapes_residual-3views.json", None),
     "3v-hybrid": ("results/table2/hybrid_residual-3views.json", None),
+    "2v-alone": ("results/stage2/ensemble/2v-dagger+2_test.json", "residual-2views"),
     "2v-escapes": ("results/table2/escapes_residual-2views.json", None),
+    "2v-hybrid": ("results/table2/hybrid_residual-2views.json", None),
+    "1v-alone": ("results/stage2/ensemble/1v-dagger+2_test.json", "residual-1view"),
     "1v-escapes": ("results/table2/escapes_residual-1view.json", None),
+    "1v-hybrid": ("results/table2/hybrid_residual-1view.json", None),
+    "1v-escapes-planner": ("results/table2/escapes_planner_residual-1view.json", None),
 }
 """Row: (its committed evaluation, the shipped name to act under where its command names a
 run directory's policy file)."""
@@ -56,8 +62,9 @@ def main() -> None:
         f"Machine: {describe()}.",
         "",
         "| row | blocked act ms: committed / here | standard act ms: committed / here "
-        "| committed machine | tasks with another outcome (blocked, standard) |",
-        "|---|---|---|---|---|",
+        "| committed machine | tasks with another outcome (blocked, standard) "
+        "| blocked act here: p99 ms / longest ms / share over 2 ms |",
+        "|---|---|---|---|---|---|",
     ]
     for name in args.rows:
         path, policy = ROWS[name]
@@ -79,10 +86,15 @@ def main() -> None:
             for family in ("blocked", "obstacles")
         }
         act = {f: (old[f]["median_act_ms"], new[f]["median_act_ms"]) for f in old}
+        blocked = new["blocked"]
+        tail = f"{blocked['act_p99_ms']:.1f} / {blocked['act_max_ms']:.1f}"
+        if blocked.get("act_share_over_aim") is not None:  # (rows since session 41)
+            tail += f" / {blocked['act_share_over_aim']:.3f}"
         lines.append(
             f"| {name} | {act['blocked'][0]:.2f} / {act['blocked'][1]:.2f} "
             f"| {act['obstacles'][0]:.2f} / {act['obstacles'][1]:.2f} "
-            f"| {committed.get('machine', '?')} | {differ['blocked']}, {differ['obstacles']} |"
+            f"| {committed.get('machine', '?')} | {differ['blocked']}, {differ['obstacles']} "
+            f"| {tail} |"
         )
         print(lines[-1], flush=True)
     (args.out / "summary.md").write_text("\n".join(lines) + "\n")
