@@ -9,8 +9,9 @@ act medians are this machine's, timed between rendered steps as `clamgen eval` t
 outcomes are compared with the committed rows task by task (the same on a machine whose convs
 run in the same precision, and for the hybrids only where no plan ran out of time). Also the
 blocked tasks' act tail here: the 99th percentile, the longest act and the share of acts over
-the 2 ms aim (`ObstacleRow.act_share_over_aim`). Prints and writes `--out`/summary.md. A shipped student evaluated from its run directory (since deleted)
-runs under its shipped name: the same file.
+the 2 ms aim (`ObstacleRow.act_share_over_aim`). Prints and writes `--out`/summary.md. A
+shipped student evaluated from its run directory (since deleted) runs under its shipped name:
+the same file.
 """
 
 from __future__ import annotations
