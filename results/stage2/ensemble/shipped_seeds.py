@@ -17,8 +17,10 @@ choosing nothing (`seeds/student<V>_seed<S>.json`, `seeds/shielded<V>_seed<S>.js
 `seeds/hybrid<V>_seed<S>.json`; skipped when they exist); its continuation's record is copied
 beside them (`seeds/d<V>_seed<S>.continue.json`, `.offline.json`). Seed 5 is the shipped
 student (`<V>v-dagger+2_test.json`, `../../table2/shielded_fine_residual-*.json`,
-`../../table2/hybrid_residual-*.json`). The 2- and 1-view seeds' policy files went with a
-lost machine's `runs/`, so their shield rows have the shipped seed only. Prints, per number
+`../../table2/hybrid_residual-*.json`). The policy files of 2- and 1-view seeds 7 and 8 (and
+1-view seed 9) went with a lost machine's `runs/`, so their shield rows have the other seeds
+only; seeds without a run directory are evaluated from their committed copies
+(`seeds/d<V>_seed<S>_policy.pt`). Prints, per number
 of views and task family, the mean success and collision rate over seeds with rliable's 95%
 stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt; then the
 blocked-path issue's aims against the means over seeds (`aims_table`), written to aims.md
