@@ -12,9 +12,11 @@ recipe" and "More seeds for the shielded rows"), into `runs/offline/<pool>-48k-s
 
 Each seed's student after two iterations (`policy_iteration1.pt`) is evaluated once its
 continuation has finished, on the 200 + 200 test tasks, alone, through the hybrid's depth
-shield without its planner (session 27), and as the hybrid (`clamgen eval --depth-hybrid`),
-choosing nothing (`seeds/student<V>_seed<S>.json`, `seeds/shielded<V>_seed<S>.json`,
-`seeds/hybrid<V>_seed<S>.json`; skipped when they exist); its continuation's record is copied
+shield without its planner (session 27), as the hybrid (`clamgen eval --depth-hybrid`),
+through the shield with random escapes (session 31), and from one view with the planner and
+the escapes (session 41; `KINDS`), choosing nothing (`seeds/student<V>_seed<S>.json`,
+`seeds/shielded<V>_seed<S>.json`, `seeds/hybrid<V>_seed<S>.json`, ...; skipped when they
+exist); its continuation's record is copied
 beside them (`seeds/d<V>_seed<S>.continue.json`, `.offline.json`). Seed 5 is the shipped
 student (`<V>v-dagger+2_test.json`, `../../table2/shielded_fine_residual-*.json`,
 `../../table2/hybrid_residual-*.json`). The policy files of 2- and 1-view seeds 7 and 8 (and
