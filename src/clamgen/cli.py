@@ -833,7 +833,13 @@ def _render_config(argv: list[str]):
 
 def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_kwargs: dict):
     """One Table 2 row name, one `ObstacleRow` per task family (written together)."""
-    from clamgen.experiments.tables import FAMILY_TITLES, table2_markdown, table2_row, write_table2
+    from clamgen.experiments.tables import (
+        ACT_AIM_MS,
+        FAMILY_TITLES,
+        table2_markdown,
+        table2_row,
+        write_table2,
+    )
 
     name = config.name or TABLE2_ROW_NAMES.get(str(config.policy), label)
     rows = []
@@ -842,8 +848,14 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
         rows.append(
             table2_row(name, policy, config.num_tasks, env_kwargs, family, config.first_seed)
         )
-        low, high = rows[-1].success_interval
-        print(f"  success {rows[-1].success_rate:.3f} (95% Wilson interval {low:.3f}-{high:.3f})")
+        row = rows[-1]
+        low, high = row.success_interval
+        print(f"  success {row.success_rate:.3f} (95% Wilson interval {low:.3f}-{high:.3f})")
+        print(
+            f"  act {row.median_act_ms:.2f} ms median, {row.act_p99_ms:.1f} ms 99th percentile, "
+            f"{row.act_max_ms:.1f} ms longest; {row.act_share_over_aim:.1%} of acts over "
+            f"{ACT_AIM_MS:g} ms"
+        )
     meta = {
         "policy": source,
         "num_tasks": config.num_tasks,

@@ -195,10 +195,12 @@ def test_table2_markdown_puts_both_families_side_by_side_with_intervals():
     assert "n=21" not in "\n".join(lines)
 
 
-def test_table2_command_runs_both_families_on_test_seeds(tmp_path):
+def test_table2_command_runs_both_families_on_test_seeds(tmp_path, capsys):
     rows = evaluate_table(
         EvalConfig(table=2, policy="ik", num_tasks=3, out=tmp_path / "ik", speeds=("0",))
     )
+    printed = capsys.readouterr().out
+    assert printed.count(f"of acts over {ACT_AIM_MS:g} ms") == 2  # the act tail, per family
     assert [row.family for row in rows] == ["obstacles", "blocked"]
     assert all(row.first_seed == TEST_SEEDS.start and row.num_tasks == 3 for row in rows)
     assert rows[1].success_rate == 0.0 and rows[1].collision_rate == 1.0  # blind path blocked
