@@ -388,8 +388,7 @@ class EvalConfig:
     from one view keeping the hand out of unseen space within 5 cm behind seen surfaces
     (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper; the settings chosen on
     validation tasks). Not with the other --depth-* options. From one view --depth-escapes
-    --depth-planner does better on the blocked tasks (0.928 against 0.851 over three and six
-    training seeds)."""
+    --depth-planner does better on the blocked tasks (`results/stage2/ensemble/aims.md`)."""
     depth_shield_m: float | None = None
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen
@@ -583,11 +582,12 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     preset = HYBRID if config.depth_hybrid else None
     if escapes_alone:
         first = _escapes_first(config)
-        preset = {
-            views: dataclasses.replace(guard, escapes_before_plan=first)
-            for views, guard in ESCAPES_PLANNER.items()
-        }
-        preset = preset if config.depth_planner else ESCAPES
+        preset = ESCAPES
+        if config.depth_planner:
+            preset = {
+                views: dataclasses.replace(guard, escapes_before_plan=first)
+                for views, guard in ESCAPES_PLANNER.items()
+            }
     guard = None if preset else _depth_guard(config)
     views = env_kwargs.get("num_views", 0)
     if not views or env_kwargs.get("obs_mode") != "both":
