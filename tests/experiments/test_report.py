@@ -223,6 +223,32 @@ def test_a_seed_set_compares_a_wrapper_with_the_policy_alone(tmp_path):
         write_seed_set(rows, tmp_path / "s" / "x.json", "c", "n", compare=[("nope", alone)])
 
 
+def test_a_seed_set_compares_two_wrappers(tmp_path):
+    write_results(tmp_path)
+    names = ("through wrapper A", "through wrapper B", "alone")
+    rows = {
+        name: [
+            (s, table2_file(tmp_path / "s" / f"{i}_{s}.json", f"r{i}", 0.9, level + 0.01 * s))
+            for s in (1, 2, 3)
+        ]
+        for i, (name, level) in enumerate(zip(names, (0.9, 0.8, 0.5), strict=True))
+    }
+    a, b, alone = names
+    write_seed_set(
+        rows, tmp_path / "s" / "seeds.json", "c", "n", [(a, alone)], compare_wrappers=[(a, b)]
+    )
+    text = build_report(ReportConfig(results_dir=tmp_path, reps=100)).read_text()
+    section = text[text.index("### Which test-time wrapper does better") :]
+    line = next(x for x in section.splitlines() if x.startswith(f"| {b} | {a} |"))
+    assert "| 0.50 (0.50-0.50) | undecided |" in line  # the standard tasks: all tie
+    assert "| 1.00 (1.00-1.00) | holds: X better |" in line  # every run of A ahead of B's
+    # The wrapper-against-alone table keeps its own pairs only.
+    wrappers = text[text.index("### What the test-time wrappers add") : text.index(section)]
+    assert f"| {alone} | {a} |" in wrappers and f"| {b} | {a} |" not in wrappers
+    with pytest.raises(ValueError, match="compare_wrappers names rows not in the set"):
+        write_seed_set(rows, tmp_path / "s" / "x.json", "c", "n", compare_wrappers=[(a, "z")])
+
+
 def test_a_seed_set_names_a_missing_result_in_one_line(tmp_path):
     write_results(tmp_path)
     present = table2_file(tmp_path / "more" / "a.json", "a", 0.9, 0.8)

@@ -73,6 +73,13 @@ shield with the unseen-space test and random escapes from stalls instead of the 
 escapes where it finds no path (`depth_planner.ESCAPES_PLANNER`, session 41, one view only)."""
 VIEWS_OF_KIND = {"escapes-planner": (1,)}
 """The kinds evaluated for some numbers of views only (the others: every one)."""
+WRAPPER_PAIRS = (
+    ("hybrid", "escapes"),
+    ("escapes-planner", "escapes"),
+    ("escapes-planner", "hybrid"),
+)
+"""(X, Y) kinds, both through a wrapper, whose P(X > Y) the report gives wherever a number of
+views has both (`compare_wrappers` of the seed set)."""
 SHIPPED_ROWS = {
     (3, "alone"): HERE / "3v-dagger+2_test.json",
     (2, "alone"): HERE / "2v-dagger+2_test.json",
@@ -248,7 +255,13 @@ def write_seeds() -> Path:
         for kind in ("hybrid", "shielded", "escapes", "escapes-planner")
         if kind in kinds(views)
     ]
-    return write_seed_set(rows, OUT / "summary.json", command, note, compare)
+    between = [
+        (_name(views, x), _name(views, y))
+        for views in sorted(SEEDS, reverse=True)
+        for x, y in WRAPPER_PAIRS
+        if {x, y} <= set(kinds(views))
+    ]
+    return write_seed_set(rows, OUT / "summary.json", command, note, compare, between)
 
 
 def main() -> None:

@@ -192,12 +192,15 @@ def write_seed_set(
     command: str,
     note: str,
     compare: Sequence[tuple[str, str]] = (),
+    compare_wrappers: Sequence[tuple[str, str]] = (),
 ) -> Path:
     """Write `out`, a seed set: for each row (a name of our choosing) its runs, each a training
     seed and the `clamgen eval --table 2` JSON holding its test scores (named relative to `out`'s
     folder, with that file's own row name). `command` writes it again; `note` says what the
     seeds vary; `compare` names (X, Y) pairs of its rows, X a policy through a test-time wrapper
-    and Y the same policies alone, whose probability of improvement the report gives.
+    and Y the same policies alone, whose probability of improvement the report gives;
+    `compare_wrappers` names (X, Y) pairs of rows that are both policies through a test-time
+    wrapper (which wrapper does better), reported the same way.
     `clamgen report` reads the scores from those files and aggregates each row over its seeds;
     nothing is copied."""
     runs = [
@@ -210,11 +213,13 @@ def write_seed_set(
         for row, found in rows.items()
         for seed, path in found
     ]
-    unknown = {row for pair in compare for row in pair} - set(rows)
-    if unknown:
-        raise ValueError(f"compare names rows not in the set: {sorted(unknown)}")
     data = {"kind": SEED_SET_KIND, "command": command, "note": note, "runs": runs}
-    data["compare"] = [list(pair) for pair in compare]
+    for key, pairs in (("compare", compare), ("compare_wrappers", compare_wrappers)):
+        unknown = {row for pair in pairs for row in pair} - set(rows)
+        if unknown:
+            raise ValueError(f"{key} names rows not in the set: {sorted(unknown)}")
+        if pairs or key == "compare":
+            data[key] = [list(pair) for pair in pairs]
     out.write_text(json.dumps(data, indent=1) + "\n")
     return out
 

@@ -307,12 +307,11 @@ def results_from_seed_sets(paths: Iterable[Path]) -> tuple[list[RunResult], set[
     return results, used
 
 
-def seed_set_pairs(paths: Iterable[Path]) -> list[tuple[str, str]]:
-    """The (X, Y) row pairs that seed sets ask to compare (`"compare"`: X a policy through a
-    test-time wrapper, Y the same policies alone), in order, each once."""
-    pairs = [
-        tuple(pair) for path in paths for pair in json.loads(path.read_text()).get("compare", [])
-    ]
+def seed_set_pairs(paths: Iterable[Path], key: str = "compare") -> list[tuple[str, str]]:
+    """The (X, Y) row pairs that seed sets ask to compare, in order, each once: under
+    `"compare"`, X a policy through a test-time wrapper and Y the same policies alone; under
+    `"compare_wrappers"`, X and Y both through a wrapper."""
+    pairs = [tuple(pair) for path in paths for pair in json.loads(path.read_text()).get(key, [])]
     return list(dict.fromkeys(pairs))
 
 
@@ -479,6 +478,17 @@ WRAPPERS = Comparison(
     "P(X > Y)",
     "the wrapper",
     "the policy alone",
+)
+BETWEEN_WRAPPERS = Comparison(
+    POI_TEXT + " X and Y are policies of the same recipe through two test-time wrappers (beyond "
+    "the paper), each row over its own training seeds; X does better when the interval lies "
+    "above 0.5, Y when it lies below. It needs >= 2 runs per row. Success is a reach with no "
+    "collision at any step; the collision rates are in each row's Table 2 file.",
+    "wrapper X",
+    "wrapper Y",
+    "P(X > Y)",
+    "X",
+    "Y",
 )
 
 
@@ -1018,6 +1028,10 @@ def build_report(config: ReportConfig) -> Path:
         wrappers = comparison_markdown(families, pairs, WRAPPERS, config.reps, config.seed)
         if wrappers:
             lines += ["### What the test-time wrappers add (beyond the paper)", "", wrappers, ""]
+        pairs = seed_set_pairs(seed_set_paths, "compare_wrappers")
+        between = comparison_markdown(families, pairs, BETWEEN_WRAPPERS, config.reps, config.seed)
+        if between:
+            lines += ["### Which test-time wrapper does better (beyond the paper)", "", between, ""]
     entries = speed_entries(root / "benchmarks") if (root / "benchmarks").is_dir() else []
     if entries:
         lines += [
