@@ -248,6 +248,21 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
         workdir, "eval", "--table", "2", "--policy", "base", "--depth-shield-m", "0.01"
     )
     assert "the depth shield needs a vision residual" in message
+    assert "or --depth-views V for a policy that sees no images" in message
+    for policy, views, extra, expected in (
+        ("base", "2", [], "--depth-views renders views for the depth wrapper: give its options"),
+        ("base", "5", ["--depth-hybrid"], "--depth-views must be in 0..4, got 5"),
+        ("base", "-1", ["--depth-escapes"], "--depth-views must be in 0..4, got -1"),
+        (
+            "residual-1view",
+            "3",
+            ["--depth-hybrid"],
+            "--depth-views 3: this policy acts on its own 1 view(s), which the depth wrapper "
+            "reads; drop --depth-views",
+        ),
+    ):
+        args = ["--table", "2", "--policy", policy, "--depth-views", views, *extra]
+        assert expected in refused(workdir, "eval", *args)
     message = refused(
         workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-shield-m", "-1"
     )

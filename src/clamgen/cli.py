@@ -41,6 +41,9 @@ POLICIES_HELP = (
     "or the path of a policy file from `clamgen train` / `clamgen train-residual`."
 )
 PRESETS_HELP = f"Presets: {', '.join(PRESET_NAMES)} (clamgen/presets/), or a .toml path."
+DEPTH_VIEWS_IMAGE_SIZE = 64
+"""Pixels a side of the views `--depth-views` renders: the shipped vision residuals' (their
+depth wrappers read these, or the 128-pixel depth cameras their presets add)."""
 
 
 def describe_machine() -> str:
@@ -432,6 +435,11 @@ class EvalConfig:
     """With --depth-escapes and --depth-planner: the random escapes an episode begins before the
     planner may plan (0: the planner first, chosen on validation tasks;
     `depth_planner.DepthShieldPlanner`)."""
+    depth_views: int = 0
+    """With the depth options, for a policy that sees no images (`base`, `ik`, a joint policy
+    file): the env renders this many RGBD views (the first cameras, at the shipped residuals'
+    64 pixels) for the depth wrapper alone, and the policy acts through it on what they show
+    (a control for what a vision residual adds inside the wrapper). 0: the policy's own views."""
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1]: each step in the same direction and
     this much as long, a slower arm that takes more steps to reach
@@ -444,6 +452,9 @@ TABLE2_ROW_NAMES = {
     "ik": "IK interpolation (no obstacle model)",
     "base": "base joint policy alone (no vision)",
 }
+GUARDED_ROW_NAMES = {"base": "base joint policy (no vision)"}
+"""Table 2 row names of policies acting through a depth wrapper, where they differ from
+`TABLE2_ROW_NAMES` (the wrapper's description follows)."""
 
 
 def evaluate_table(config: EvalConfig) -> list:
@@ -499,7 +510,14 @@ def evaluate_table(config: EvalConfig) -> list:
         )
     policy, source = _with_action_scale(policy, source, config.action_scale)
     if _wants_depth_shield(config):
+        plain = source
         policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
+        if config.name is None:  # the row is named after the policy and its wrapper
+            name = GUARDED_ROW_NAMES.get(str(config.policy))
+            name = name or TABLE2_ROW_NAMES.get(str(config.policy), label)
+            views = config.depth_views
+            rendered = f", {views} view{'s' * (views > 1)} rendered for it" if views else ""
+            config = dataclasses.replace(config, name=name + source[len(plain) :] + rendered)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -536,8 +554,15 @@ def evaluate_table(config: EvalConfig) -> list:
 
 
 def _wants_depth_shield(config) -> bool:
-    """Whether any of the depth shield's options is given (`clamgen eval` and `render`)."""
-    return config.depth_hybrid or _depth_options_given(config)
+    """Whether any of the depth shield's options is given (`clamgen eval` and `render`);
+    SystemExit for --depth-views without one."""
+    wanted = config.depth_hybrid or _depth_options_given(config)
+    if config.depth_views and not wanted:
+        raise SystemExit(
+            "--depth-views renders views for the depth wrapper: give its options too "
+            "(--depth-hybrid, --depth-escapes or --depth-shield-m)"
+        )
+    return wanted
 
 
 def _depth_options_given(config) -> bool:
@@ -589,12 +614,8 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
                 for views, guard in ESCAPES_PLANNER.items()
             }
     guard = None if preset else _depth_guard(config)
-    views = env_kwargs.get("num_views", 0)
-    if not views or env_kwargs.get("obs_mode") != "both":
-        raise SystemExit(
-            "the depth shield needs a vision residual (a policy that observes its joints and "
-            "RGBD views)"
-        )
+    env_kwargs = _depth_views(env_kwargs, config.depth_views)
+    views = env_kwargs["num_views"]
     guard = guard or preset[min(views, max(preset))]
     if guard.planner and find_spec("ompl") is None:
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
@@ -603,6 +624,34 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     except ValueError as error:
         raise SystemExit(f"bad --depth-shield-m: {error}") from error
     return shielded, source + guard.describe(), env_kwargs | guard.env_kwargs()
+
+
+def _depth_views(env_kwargs: dict, depth_views: int) -> dict:
+    """The env options under the depth wrapper: the policy's own, or for a policy that sees no
+    images `depth_views` rendered views for the wrapper alone; SystemExit where neither
+    gives it joints and RGBD views."""
+    from clamgen.sim.constants import NUM_CAMERAS
+
+    views = env_kwargs.get("num_views", 0)
+    if not 0 <= depth_views <= NUM_CAMERAS:
+        raise SystemExit(f"--depth-views must be in 0..{NUM_CAMERAS}, got {depth_views}")
+    if views and env_kwargs.get("obs_mode") == "both":
+        if depth_views not in (0, views):
+            raise SystemExit(
+                f"--depth-views {depth_views}: this policy acts on its own {views} view(s), "
+                "which the depth wrapper reads; drop --depth-views"
+            )
+        return env_kwargs
+    if views or not depth_views:
+        raise SystemExit(
+            "the depth shield needs a vision residual (a policy that observes its joints and "
+            "RGBD views), or --depth-views V for a policy that sees no images"
+        )
+    return env_kwargs | {
+        "num_views": depth_views,
+        "image_size": DEPTH_VIEWS_IMAGE_SIZE,
+        "obs_mode": "both",
+    }
 
 
 def _depth_guard(config):

@@ -453,6 +453,38 @@ def test_escapes_with_the_planner_alone_are_the_escape_rows_shield_planning_firs
         assert _depth_guard(config) == guard
 
 
+def test_a_policy_that_sees_no_images_acts_through_the_wrapper_on_rendered_views(tmp_path):
+    """`--depth-views V`: the env renders V views (at the shipped residuals' size) for the
+    wrapper alone; the policy's own observation is unchanged, and the row says so."""
+    from clamgen.cli import DEPTH_VIEWS_IMAGE_SIZE, main
+
+    for views in (1, 3):
+        config = tyro.cli(EvalConfig, args=["--depth-hybrid", "--depth-views", str(views)])
+        assert _wants_depth_shield(config)
+        shielded, source, kwargs = _with_depth_shield(IKInterpolationPolicy(), "ik", {}, config)
+        guard = HYBRID[views]
+        assert source == "ik" + guard.describe()
+        rendered = {"num_views": views, "image_size": DEPTH_VIEWS_IMAGE_SIZE, "obs_mode": "both"}
+        assert kwargs == rendered | guard.env_kwargs()
+        assert isinstance(shielded, DepthShieldPlanner)
+    # A vision residual's own views are the wrapper's: --depth-views may repeat them.
+    own = {"num_views": 2, "image_size": 64, "obs_mode": "both"}
+    config = tyro.cli(EvalConfig, args=["--depth-escapes", "--depth-views", "2"])
+    assert _with_depth_shield(IKInterpolationPolicy(), "", own, config)[2] == (
+        own | ESCAPES[2].env_kwargs()
+    )
+    # End to end: IK interpolation (no obstacle model) through the escape rows' wrapper on
+    # one rendered view, on one blocked task.
+    out = tmp_path / "ik_escapes"
+    args = ["--table", "2", "--policy", "ik", "--depth-views", "1", "--depth-escapes"]
+    main(["eval", *args, "--families", "blocked", "--num-tasks", "1", "--out", str(out)])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"] == (
+        "IK interpolation (no obstacle model)" + ESCAPES[1].describe() + ", 1 view rendered for it"
+    )
+    assert row["family"] == "blocked" and row["num_tasks"] == 1
+
+
 @pytest.mark.parametrize("views", sorted(HYBRID))
 def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     guard = HYBRID[views]

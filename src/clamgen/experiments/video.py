@@ -96,6 +96,9 @@ class RenderConfig:
     depth_escapes_before_plan: int = ESCAPES_BEFORE_PLAN
     """With --depth-escapes and --depth-planner: the escapes an episode begins before the
     planner may plan, as `clamgen eval --depth-escapes-before-plan`."""
+    depth_views: int = 0
+    """For a policy that sees no images: this many views rendered for the depth wrapper alone,
+    as `clamgen eval --depth-views`. 0: the policy's own views."""
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1] (a slower arm), as `clamgen eval
     --action-scale`. 1: as trained."""

@@ -1,0 +1,91 @@
+"""What the vision residual adds inside the depth wrappers: the residual's base (no vision)
+through the same wrappers, against the shipped residual, on the same test tasks (session 42;
+protocol in README.md, "Session 42").
+
+    python results/stage2/shield/base_control.py
+
+Reads the committed Table 2 files (`results/table2/`): the shipped residual of each number of
+views (seed 5) alone and through each wrapper, and the base alone and through the same
+wrappers (`clamgen eval --table 2 --policy base --depth-views V ...`). Writes
+`base_control.md` beside this file: per wrapper and task family, each row's success,
+collision rate and act times, and task by task how many tasks only the residual's row solves
+and how many only the base's, with the exact two-sided sign test on those.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from scipy.stats import binomtest
+
+HERE = Path(__file__).resolve().parent
+TABLE2 = HERE.parents[2] / "results" / "table2"
+ENSEMBLE = HERE.parent / "ensemble"
+VIEWS = {3: "3views", 2: "2views", 1: "1view"}
+PAIRS = [
+    *((views, "alone", ENSEMBLE / f"{views}v-dagger+2_test.json", TABLE2 / "base.json")
+      for views in VIEWS),
+    *(
+        (views, wrapper, TABLE2 / f"{wrapper}_residual-{suffix}.json",
+         TABLE2 / f"base_through_{wrapper}_{suffix}.json")
+        for wrapper in ("hybrid", "escapes")
+        for views, suffix in VIEWS.items()
+    ),
+    (1, "escapes_planner", TABLE2 / "escapes_planner_residual-1view.json",
+     TABLE2 / "base_through_escapes_planner_1view.json"),
+]  # fmt: skip
+"""(views, how it acts, the shipped residual's row file, the base's row file)."""
+WORDS = {
+    "alone": "alone",
+    "hybrid": "the hybrid (shield + planner when stuck)",
+    "escapes": "shield + random escapes when stuck",
+    "escapes_planner": "shield + planner when stuck + escapes where it finds no path",
+}
+
+
+def rows(path: Path) -> dict[str, dict]:
+    return {row["family"]: row for row in json.loads(path.read_text())["rows"]}
+
+
+def cell(row: dict) -> str:
+    text = f"{row['success_rate']:.3f} / {row['collision_rate']:.3f} / {row['median_act_ms']:.2f}"
+    return text + (f" (p99 {row['act_p99_ms']:.1f})" if "act_p99_ms" in row else "")
+
+
+def main() -> None:
+    lines = [
+        "# The residual's base (no vision) through the same depth wrappers (session 42)",
+        "",
+        "Written by `python results/stage2/shield/base_control.py` from the Table 2 files it",
+        "names; test tasks, 200 per family, the shipped residuals (seed 5) and the base",
+        "(`clamgen eval --table 2 --policy base --depth-views V ...`). Each cell: success /",
+        "collision rate / median act ms (99th percentile). Task by task: tasks only the",
+        "residual's row solves / only the base's, and the exact two-sided sign test on them.",
+        "",
+        "| views | acting | family | shipped residual | base (no vision) "
+        "| only residual / only base (P) |",
+        "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for views, how, residual_path, base_path in PAIRS:
+        if not base_path.exists():
+            print(f"missing {base_path.name}: not run yet")
+            continue
+        residual, base = rows(residual_path), rows(base_path)
+        for family in ("obstacles", "blocked"):
+            a, b = residual[family]["task_success"], base[family]["task_success"]
+            only_a = sum(x and not y for x, y in zip(a, b, strict=True))
+            only_b = sum(y and not x for x, y in zip(a, b, strict=True))
+            p = binomtest(only_a, only_a + only_b).pvalue if only_a + only_b else 1.0
+            lines.append(
+                f"| {views} | {WORDS[how]} | {family} | {cell(residual[family])} | "
+                f"{cell(base[family])} | {only_a} / {only_b} ({p:.2g}) |"
+            )
+    out = HERE / "base_control.md"
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print("wrote", out)
+
+
+if __name__ == "__main__":
+    main()
