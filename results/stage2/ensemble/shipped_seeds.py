@@ -25,8 +25,9 @@ only; seeds without a run directory are evaluated from their committed copies
 (`seeds/d<V>_seed<S>_policy.pt`). Prints, per number
 of views and task family, the mean success and collision rate over seeds with rliable's 95%
 stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt; then the
-blocked-path issue's aims against the means over seeds (`aims_table`), written to aims.md
-(the README's Status quotes it; a test keeps the two the same), and the seed set
+blocked-path issue's aims against the means over seeds (`aims_table`, with a control line
+under each number of views for each wrapper the base was run through: `control_row`), written
+to aims.md (the README's Status quotes it; a test keeps the two the same), and the seed set
 `seeds/summary.json` through which `clamgen report` aggregates these rows over their seeds.
 
     python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1] [--seeds 7 8]
@@ -122,6 +123,20 @@ KIND_WORDS = {
     "escapes-planner": "+ depth shield, planner when stuck, random escapes where it finds no path",
 }
 
+CONTROL_STEMS = {"hybrid": "hybrid", "escapes": "escapes", "escapes-planner": "escapes_planner"}
+"""Wrapper kinds with a control row: the residual's base (no vision) through the same wrapper
+on views rendered for it (`clamgen eval --policy base --depth-views V ...`, session 42;
+`results/table2/base_through_<stem>_<views>.json`). One run: the base has no training seed."""
+
+
+def control_row(views: int, kind: str) -> Path | None:
+    """The control row's Table 2 JSON of a wrapper kind, where it was run."""
+    if kind not in CONTROL_STEMS:
+        return None
+    suffix = "1view" if views == 1 else f"{views}views"
+    path = TABLE2 / f"base_through_{CONTROL_STEMS[kind]}_{suffix}.json"
+    return path if path.is_file() else None
+
 
 def run_dir(views: int, seed: int) -> Path:
     return ROOT / "runs" / "offline" / f"{POOLS[views]}-48k-s{seed}-dagger"
@@ -208,22 +223,34 @@ def aims_table() -> str:
     ]
     for views in sorted(SEEDS, reverse=True):
         aim = BLOCKED_AIMS[views]
+        controls = []
         for kind in kinds(views):
-            found = _rows(views, kind)
-            rows = [json.loads(path.read_text())["rows"] for _, path in found]
-            by = [{row["family"]: row for row in seed_rows} for seed_rows in rows]
-            blocked = float(np.mean([b["blocked"]["success_rate"] for b in by]))
-            standard = float(np.mean([b["obstacles"]["success_rate"] for b in by]))
-            collisions = float(np.mean([b["blocked"]["collision_rate"] for b in by]))
-            act = float(np.median([b["blocked"]["median_act_ms"] for b in by]))
-            lines.append(
-                f"| {views} | {KIND_WORDS[kind]} | {len(found)} "
-                f"| {_mark(blocked, blocked >= aim)} ({aim:.2f}) "
-                f"| {_mark(standard, standard >= STANDARD_AIM)} "
-                f"| {_mark(collisions, collisions <= COLLISION_AIM)} "
-                f"| {_mark(act, act < ACT_AIM_MS, 2)} |"
-            )
+            found = [path for _, path in _rows(views, kind)]
+            lines.append(_aims_line(views, KIND_WORDS[kind], str(len(found)), found, aim))
+            control = control_row(views, kind)
+            if control is not None:
+                wrapper = KIND_WORDS[kind].removeprefix("+ ")
+                words = f"control: the base (no vision) through the {wrapper}"
+                controls.append(_aims_line(views, words, "-", [control], aim))
+        lines += controls
     return "\n".join(lines)
+
+
+def _aims_line(views: int, words: str, seeds: str, paths: list[Path], aim: float) -> str:
+    """One line of `aims_table`: the means over `paths` (one test row JSON a seed)."""
+    rows = [json.loads(path.read_text())["rows"] for path in paths]
+    by = [{row["family"]: row for row in seed_rows} for seed_rows in rows]
+    blocked = float(np.mean([b["blocked"]["success_rate"] for b in by]))
+    standard = float(np.mean([b["obstacles"]["success_rate"] for b in by]))
+    collisions = float(np.mean([b["blocked"]["collision_rate"] for b in by]))
+    act = float(np.median([b["blocked"]["median_act_ms"] for b in by]))
+    return (
+        f"| {views} | {words} | {seeds} "
+        f"| {_mark(blocked, blocked >= aim)} ({aim:.2f}) "
+        f"| {_mark(standard, standard >= STANDARD_AIM)} "
+        f"| {_mark(collisions, collisions <= COLLISION_AIM)} "
+        f"| {_mark(act, act < ACT_AIM_MS, 2)} |"
+    )
 
 
 def seed_rows(views: int) -> dict[str, list[tuple[int, Path]]]:
