@@ -123,7 +123,12 @@ KIND_WORDS = {
     "escapes-planner": "+ depth shield, planner when stuck, random escapes where it finds no path",
 }
 
-CONTROL_STEMS = {"hybrid": "hybrid", "escapes": "escapes", "escapes-planner": "escapes_planner"}
+CONTROL_STEMS = {
+    "shielded": "shielded",
+    "hybrid": "hybrid",
+    "escapes": "escapes",
+    "escapes-planner": "escapes_planner",
+}
 """Wrapper kinds with a control row: the residual's base (no vision) through the same wrapper
 on views rendered for it (`clamgen eval --policy base --depth-views V ...`, session 42;
 `results/table2/base_through_<stem>_<views>.json`). One run: the base has no training seed."""

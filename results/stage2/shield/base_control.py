@@ -28,8 +28,8 @@ PAIRS = [
       for views in VIEWS),
     *(
         (views, wrapper, TABLE2 / f"{wrapper}_residual-{suffix}.json",
-         TABLE2 / f"base_through_{wrapper}_{suffix}.json")
-        for wrapper in ("hybrid", "escapes")
+         TABLE2 / f"base_through_{wrapper.removesuffix('_fine')}_{suffix}.json")
+        for wrapper in ("shielded_fine", "hybrid", "escapes")
         for views, suffix in VIEWS.items()
     ),
     (1, "escapes_planner", TABLE2 / "escapes_planner_residual-1view.json",
@@ -38,6 +38,7 @@ PAIRS = [
 """(views, how it acts, the shipped residual's row file, the base's row file)."""
 WORDS = {
     "alone": "alone",
+    "shielded_fine": "the hybrid's shield alone (no planner, no escapes)",
     "hybrid": "the hybrid (shield + planner when stuck)",
     "escapes": "shield + random escapes when stuck",
     "escapes_planner": "shield + planner when stuck + escapes where it finds no path",
