@@ -26,8 +26,9 @@ only; seeds without a run directory are evaluated from their committed copies
 of views and task family, the mean success and collision rate over seeds with rliable's 95%
 stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt; then the
 blocked-path issue's aims against the means over seeds (`aims_table`, with a control line
-under each number of views for each wrapper the base was run through: `control_row`), written
-to aims.md (the README's Status quotes it; a test keeps the two the same), and the seed set
+under each number of views for each wrapper the base, or no policy, was run through:
+`control_rows`), written to aims.md (the README's Status quotes it; a test keeps the two the
+same), and the seed set
 `seeds/summary.json` through which `clamgen report` aggregates these rows over their seeds.
 
     python results/stage2/ensemble/shipped_seeds.py [--views 3 2 1] [--seeds 7 8]
@@ -134,13 +135,22 @@ on views rendered for it (`clamgen eval --policy base --depth-views V ...`, sess
 `results/table2/base_through_<stem>_<views>.json`). One run: the base has no training seed."""
 
 
-def control_row(views: int, kind: str) -> Path | None:
-    """The control row's Table 2 JSON of a wrapper kind, where it was run."""
+CONTROLS = {"base": "the base (no vision)", "hold": "no policy (the arm holds still)"}
+"""Who acts in the control rows: the residual's base (`base_through_*`), or nothing
+(`hold_through_*`, `../shield/hold_control.py`: the wrapper alone acts)."""
+
+
+def control_rows(views: int, kind: str) -> list[tuple[str, Path]]:
+    """(who acts, Table 2 JSON) of each control row of a wrapper kind that was run."""
     if kind not in CONTROL_STEMS:
-        return None
+        return []
     suffix = "1view" if views == 1 else f"{views}views"
-    path = TABLE2 / f"base_through_{CONTROL_STEMS[kind]}_{suffix}.json"
-    return path if path.is_file() else None
+    found = []
+    for who, words in CONTROLS.items():
+        path = TABLE2 / f"{who}_through_{CONTROL_STEMS[kind]}_{suffix}.json"
+        if path.is_file():
+            found.append((words, path))
+    return found
 
 
 def run_dir(views: int, seed: int) -> Path:
@@ -232,11 +242,10 @@ def aims_table() -> str:
         for kind in kinds(views):
             found = [path for _, path in _rows(views, kind)]
             lines.append(_aims_line(views, KIND_WORDS[kind], str(len(found)), found, aim))
-            control = control_row(views, kind)
-            if control is not None:
-                wrapper = KIND_WORDS[kind].removeprefix("+ ")
-                words = f"control: the base (no vision) through the {wrapper}"
-                controls.append(_aims_line(views, words, "-", [control], aim))
+            wrapper = KIND_WORDS[kind].removeprefix("+ ")
+            for who, path in control_rows(views, kind):
+                words = f"control: {who} through the {wrapper}"
+                controls.append(_aims_line(views, words, "-", [path], aim))
         lines += controls
     return "\n".join(lines)
 

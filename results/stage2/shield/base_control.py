@@ -5,8 +5,9 @@ protocol in README.md, "Session 42").
     python results/stage2/shield/base_control.py
 
 Reads the committed Table 2 files (`results/table2/`): the shipped residual of each number of
-views (seed 5) alone and through each wrapper, and the base alone and through the same
-wrappers (`clamgen eval --table 2 --policy base --depth-views V ...`). Writes
+views (seed 5) alone and through each wrapper, the base alone and through the same wrappers
+(`clamgen eval --table 2 --policy base --depth-views V ...`), and where it was run no policy
+inside the wrapper (`hold_control.py`). Writes
 `base_control.md` beside this file: per wrapper and task family, each row's success,
 collision rate and act times, and task by task how many tasks only the residual's row solves
 and how many only the base's, with the exact two-sided sign test on those.
@@ -64,15 +65,20 @@ def main() -> None:
         "collision rate / median act ms (99th percentile). Task by task: tasks only the",
         "residual's row solves / only the base's, and the exact two-sided sign test on them.",
         "",
+        "The last column, where it was run (`hold_control.py`): no policy at all, the arm",
+        "holding still inside the wrapper, so the wrapper alone acts.",
+        "",
         "| views | acting | family | shipped residual | base (no vision) "
-        "| only residual / only base (P) |",
-        "|---|---|---|---|---|---|",
+        "| only residual / only base (P) | no policy |",
+        "|---|---|---|---|---|---|---|",
     ]  # fmt: skip
     for views, how, residual_path, base_path in PAIRS:
         if not base_path.exists():
             print(f"missing {base_path.name}: not run yet")
             continue
         residual, base = rows(residual_path), rows(base_path)
+        hold_path = base_path.with_name(base_path.name.replace("base_through_", "hold_through_"))
+        hold = rows(hold_path) if hold_path.exists() else None
         for family in ("obstacles", "blocked"):
             a, b = residual[family]["task_success"], base[family]["task_success"]
             only_a = sum(x and not y for x, y in zip(a, b, strict=True))
@@ -80,7 +86,8 @@ def main() -> None:
             p = binomtest(only_a, only_a + only_b).pvalue if only_a + only_b else 1.0
             lines.append(
                 f"| {views} | {WORDS[how]} | {family} | {cell(residual[family])} | "
-                f"{cell(base[family])} | {only_a} / {only_b} ({p:.2g}) |"
+                f"{cell(base[family])} | {only_a} / {only_b} ({p:.2g}) | "
+                f"{cell(hold[family]) if hold else '-'} |"
             )
     out = HERE / "base_control.md"
     out.write_text("\n".join(lines) + "\n")
