@@ -513,11 +513,10 @@ def evaluate_table(config: EvalConfig) -> list:
         plain = source
         policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
         if config.name is None:  # the row is named after the policy and its wrapper
-            name = GUARDED_ROW_NAMES.get(str(config.policy))
-            name = name or TABLE2_ROW_NAMES.get(str(config.policy), label)
-            views = config.depth_views
-            rendered = f", {views} view{'s' * (views > 1)} rendered for it" if views else ""
-            config = dataclasses.replace(config, name=name + source[len(plain) :] + rendered)
+            policy_name = str(config.policy)
+            name = GUARDED_ROW_NAMES.get(policy_name) or TABLE2_ROW_NAMES.get(policy_name, label)
+            name = guarded_row_name(name, source[len(plain) :], config.depth_views)
+            config = dataclasses.replace(config, name=name)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
@@ -614,7 +613,7 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
                 for views, guard in ESCAPES_PLANNER.items()
             }
     guard = None if preset else _depth_guard(config)
-    env_kwargs = _depth_views(env_kwargs, config.depth_views)
+    env_kwargs = depth_views_env(env_kwargs, config.depth_views)
     views = env_kwargs["num_views"]
     guard = guard or preset[min(views, max(preset))]
     if guard.planner and find_spec("ompl") is None:
@@ -626,10 +625,18 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     return shielded, source + guard.describe(), env_kwargs | guard.env_kwargs()
 
 
-def _depth_views(env_kwargs: dict, depth_views: int) -> dict:
+def guarded_row_name(name: str, wrapper: str, depth_views: int) -> str:
+    """A Table 2 row name for policy `name` acting through the depth wrapper `wrapper` (its
+    `DepthGuard.describe()`), saying how many views `--depth-views` rendered for it."""
+    if not depth_views:
+        return name + wrapper
+    return f"{name}{wrapper}, {depth_views} view{'s' * (depth_views > 1)} rendered for it"
+
+
+def depth_views_env(env_kwargs: dict, depth_views: int) -> dict:
     """The env options under the depth wrapper: the policy's own, or for a policy that sees no
-    images `depth_views` rendered views for the wrapper alone; SystemExit where neither
-    gives it joints and RGBD views."""
+    images `depth_views` rendered views for the wrapper alone (`--depth-views`); SystemExit
+    where neither gives it joints and RGBD views."""
     from clamgen.sim.constants import NUM_CAMERAS
 
     views = env_kwargs.get("num_views", 0)

@@ -124,15 +124,11 @@ KIND_WORDS = {
     "escapes-planner": "+ depth shield, planner when stuck, random escapes where it finds no path",
 }
 
-CONTROL_STEMS = {
-    "shielded": "shielded",
-    "hybrid": "hybrid",
-    "escapes": "escapes",
-    "escapes-planner": "escapes_planner",
-}
-"""Wrapper kinds with a control row: the residual's base (no vision) through the same wrapper
-on views rendered for it (`clamgen eval --policy base --depth-views V ...`, session 42;
-`results/table2/base_through_<stem>_<views>.json`). One run: the base has no training seed."""
+CONTROL_STEMS = {kind: stem for kind, stem in STEMS.items() if kind != "alone"}
+"""Wrapper kinds with control rows, by their file stems (a seed's): the residual's base (no
+vision) or no policy through the same wrapper on views rendered for it (`clamgen eval --policy
+base --depth-views V ...`, `../shield/hold_control.py`; session 42;
+`results/table2/<who>_through_<stem>_<views>.json`). One run each: no training seed."""
 
 
 CONTROLS = {"base": "the base (no vision)", "hold": "no policy (the arm holds still)"}

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from clamgen.cli import DEPTH_VIEWS_IMAGE_SIZE
+from clamgen.cli import DEPTH_VIEWS_IMAGE_SIZE, EvalConfig, depth_views_env, guarded_row_name
 from clamgen.experiments.depth_planner import ESCAPES_PLANNER, HYBRID
 from clamgen.experiments.machine import describe
 from clamgen.experiments.tables import table2_row, write_table2
@@ -30,8 +30,8 @@ from clamgen.robot import ur5
 
 TABLE2 = Path(__file__).resolve().parents[2] / "table2"
 WRAPPERS = {"hybrid": HYBRID, "escapes-planner": ESCAPES_PLANNER}
-FIRST_SEED = 1_000_000_000  # the test tasks of every Table 2 row
-NUM_TASKS = 200
+FIRST_SEED = EvalConfig.first_seed  # the test tasks of every Table 2 row
+NUM_TASKS = EvalConfig.num_tasks
 
 
 class Hold:
@@ -47,15 +47,8 @@ class Hold:
 def run(views: int, wrapper: str) -> Path:
     guard = WRAPPERS[wrapper][views]
     policy = guard.wrap(Hold(), views, DEPTH_VIEWS_IMAGE_SIZE)
-    env_kwargs = {
-        "num_views": views,
-        "image_size": DEPTH_VIEWS_IMAGE_SIZE,
-        "obs_mode": "both",
-    } | guard.env_kwargs()
-    plural = "s" * (views > 1)
-    name = (
-        f"no policy (the arm holds still){guard.describe()}, {views} view{plural} rendered for it"
-    )
+    env_kwargs = depth_views_env({}, views) | guard.env_kwargs()
+    name = guarded_row_name("no policy (the arm holds still)", guard.describe(), views)
     rows = [
         table2_row(name, policy, NUM_TASKS, env_kwargs, family, FIRST_SEED)
         for family in ("obstacles", "blocked")
