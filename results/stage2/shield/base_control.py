@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from scipy.stats import binomtest
+from clamgen.experiments.tables import paired_count
 
 HERE = Path(__file__).resolve().parent
 TABLE2 = HERE.parents[2] / "results" / "table2"
@@ -80,13 +80,11 @@ def main() -> None:
         hold_path = base_path.with_name(base_path.name.replace("base_through_", "hold_through_"))
         hold = rows(hold_path) if hold_path.exists() else None
         for family in ("obstacles", "blocked"):
-            a, b = residual[family]["task_success"], base[family]["task_success"]
-            only_a = sum(x and not y for x, y in zip(a, b, strict=True))
-            only_b = sum(y and not x for x, y in zip(a, b, strict=True))
-            p = binomtest(only_a, only_a + only_b).pvalue if only_a + only_b else 1.0
+            pair = paired_count(residual[family]["task_success"], base[family]["task_success"])
             lines.append(
                 f"| {views} | {WORDS[how]} | {family} | {cell(residual[family])} | "
-                f"{cell(base[family])} | {only_a} / {only_b} ({p:.2g}) | "
+                f"{cell(base[family])} | {pair.first_only} / {pair.second_only} "
+                f"({pair.p_value:.2g}) | "
                 f"{cell(hold[family]) if hold else '-'} |"
             )
     out = HERE / "base_control.md"
