@@ -211,7 +211,10 @@ def test_eval_and_render_list_the_valid_policies(workdir):
             "--policy 'nosuch' not found; choose one of base, residual-3views, "
             "residual-2views, residual-1view, " in message
         )
-        assert "image-only, ik, rrt, or the path of a policy file" in message
+        assert (
+            "image-only, ik, rrt, depth-rrt-3views, depth-rrt-2views, depth-rrt-1view, or the "
+            "path of a policy file" in message
+        )
     (workdir / "run").mkdir()
     message = refused(workdir, "eval", "--policy", "run")
     assert "run is a directory; its policy file is run/policy.pt" in message

@@ -22,7 +22,13 @@ import numpy as np
 import tyro
 
 from clamgen.envs import ENV_IDS
-from clamgen.experiments.policies import BASELINES, SHIPPED_POLICIES, PolicyName, policy_label
+from clamgen.experiments.policies import (
+    BASELINES,
+    DEPTH_RRT_BASELINES,
+    SHIPPED_POLICIES,
+    PolicyName,
+    policy_label,
+)
 from clamgen.experiments.stall import ESCAPES_BEFORE_PLAN
 
 DESCRIPTION = "CLAMGen: closed-loop UR5 arm motion generation via multi-view vision-based RL."
@@ -41,9 +47,6 @@ POLICIES_HELP = (
     "or the path of a policy file from `clamgen train` / `clamgen train-residual`."
 )
 PRESETS_HELP = f"Presets: {', '.join(PRESET_NAMES)} (clamgen/presets/), or a .toml path."
-DEPTH_VIEWS_IMAGE_SIZE = 64
-"""Pixels a side of the views `--depth-views` renders: the shipped vision residuals' (their
-depth wrappers read these, or the 128-pixel depth cameras their presets add)."""
 
 
 def describe_machine() -> str:
@@ -222,14 +225,15 @@ def _check_base_policy(name: str) -> None:
 
 def _check_policy(name: str | Path) -> None:
     """A ValueError listing the valid names when `name` is neither a shipped policy, nor a
-    baseline, nor an existing file; an ImportError when `rrt` lacks its planner (OMPL)."""
-    if name == "rrt":
+    baseline, nor an existing file; an ImportError when `rrt` or a `depth-rrt-*` baseline
+    lacks its planner (OMPL)."""
+    if name == "rrt" or name in DEPTH_RRT_BASELINES:
         try:
             for module in ("ompl.base", "ompl.geometric"):
                 importlib.import_module(module)
         except ImportError as error:
             raise ImportError(
-                "--policy rrt needs OMPL 2 (`pip install ompl`, or clamgen[planning])"
+                f"--policy {name} needs OMPL 2 (`pip install ompl`, or clamgen[planning])"
             ) from error
     if name in (*SHIPPED_POLICIES, *BASELINES) or Path(name).is_file():
         return
@@ -354,8 +358,10 @@ class EvalConfig:
     policy: PolicyName | Path = "base"
     """A policy shipped with the package (`base`; the vision residuals `residual-3views`,
     `residual-2views`, `residual-1view`; `image-only`), a baseline
-    (`ik`: IK interpolation, `rrt`: RRT-Connect with the full scene model), or a policy file
-    written by `clamgen train` / `clamgen train-residual` (`RUN_DIR/policy.pt`)."""
+    (`ik`: IK interpolation, `rrt`: RRT-Connect with the full scene model,
+    `depth-rrt-3views` / `-2views` / `-1view`: RRT-Connect on the depth map of that many
+    rendered views, no learned policy, beyond the paper), or a policy file written by
+    `clamgen train` / `clamgen train-residual` (`RUN_DIR/policy.pt`)."""
     num_tasks: int = 200
     """Evaluation tasks per speed row, or per task family of Table 2 (the paper: 200)."""
     first_seed: int = 1_000_000_000
@@ -451,6 +457,11 @@ TABLE2_ROW_NAMES = {
     "rrt": "RRT with full model",
     "ik": "IK interpolation (no obstacle model)",
     "base": "base joint policy alone (no vision)",
+    **{
+        name: f"RRT on the depth map of {views} RGBD view{'s' * (views > 1)}, no learned "
+        "policy (ours)"
+        for name, views in DEPTH_RRT_BASELINES.items()
+    },
 }
 GUARDED_ROW_NAMES = {"base": "base joint policy (no vision)"}
 """Table 2 row names of policies acting through a depth wrapper, where they differ from
@@ -554,8 +565,13 @@ def evaluate_table(config: EvalConfig) -> list:
 
 def _wants_depth_shield(config) -> bool:
     """Whether any of the depth shield's options is given (`clamgen eval` and `render`);
-    SystemExit for --depth-views without one."""
+    SystemExit for --depth-views without one, or any for a `depth-rrt-*` baseline."""
     wanted = config.depth_hybrid or _depth_options_given(config)
+    if str(config.policy) in DEPTH_RRT_BASELINES and (wanted or config.depth_views):
+        raise SystemExit(
+            f"--policy {config.policy} plans on the depth map of its own views through the "
+            "hybrid's shield already: drop the --depth-* options"
+        )
     if config.depth_views and not wanted:
         raise SystemExit(
             "--depth-views renders views for the depth wrapper: give its options too "
@@ -654,11 +670,9 @@ def depth_views_env(env_kwargs: dict, depth_views: int) -> dict:
             "the depth shield needs a vision residual (a policy that observes its joints and "
             "RGBD views), or --depth-views V for a policy that sees no images"
         )
-    return env_kwargs | {
-        "num_views": depth_views,
-        "image_size": DEPTH_VIEWS_IMAGE_SIZE,
-        "obs_mode": "both",
-    }
+    from clamgen.experiments.depth_planner import rendered_views_env
+
+    return env_kwargs | rendered_views_env(depth_views)
 
 
 def _depth_guard(config):

@@ -6,6 +6,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from clamgen.robot import ur5
+
 
 @runtime_checkable
 class Policy(Protocol):
@@ -18,6 +20,17 @@ class Policy(Protocol):
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray: ...
 
     def reset(self, env: Any | None = None) -> None: ...
+
+
+class HoldStill:
+    """The arm holds still: a zero joint command every step (no policy inside a wrapper that
+    acts by itself, such as the `depth-rrt-*` baselines' planner on the depth map)."""
+
+    def reset(self, env: Any | None = None) -> None:
+        pass
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.zeros(ur5.NUM_JOINTS, np.float32)
 
 
 class ScaledPolicy:

@@ -26,6 +26,7 @@ from clamgen.experiments.depth_shield import ArmCapsules, DepthOccupancy, DepthS
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.tables import _PlanTimeRecorder
 from clamgen.experiments.video import RenderConfig
+from clamgen.policy import HoldStill
 from clamgen.sim import constants as C
 from clamgen.sim.scene import Obstacles
 
@@ -204,21 +205,11 @@ def test_depth_shield_keeps_blind_ik_interpolation_off_the_obstacles(blocked_env
     assert sum(r.collided for r in shielded) <= 1
 
 
-class Still:
-    """A policy that never moves: stuck from the first step."""
-
-    def reset(self, env=None) -> None:
-        pass
-
-    def act(self, obs) -> np.ndarray:
-        return np.zeros(6, np.float32)
-
-
 def test_planner_on_the_depth_map_reaches_past_the_obstacles(blocked_env):
     pytest.importorskip("ompl.base")
     from clamgen.experiments.depth_planner import STUCK_STEPS, DepthShieldPlanner
 
-    planner = DepthShieldPlanner(Still(), VIEWS, SIZE, margin_m=0.01)
+    planner = DepthShieldPlanner(HoldStill(), VIEWS, SIZE, margin_m=0.01)
     recorder = _PlanTimeRecorder(planner)
     records = evaluate(blocked_env, recorder, TEST_SEEDS.seeds(3))
     # It waits out the stuck steps, plans on what the cameras showed, and arrives cleanly.
@@ -241,14 +232,74 @@ def test_planner_with_a_budget_in_checks_reaches_past_the_obstacles_the_same_way
 
     runs = []
     for _ in range(2):
-        planner = DepthShieldPlanner(Still(), VIEWS, SIZE, margin_m=0.01, plan_checks=10_000)
+        planner = DepthShieldPlanner(HoldStill(), VIEWS, SIZE, margin_m=0.01, plan_checks=10_000)
         assert planner.rrt.max_checks == 10_000 and planner.rrt.simplify_max_checks
         records = evaluate(blocked_env, planner, TEST_SEEDS.seeds(3))
         assert planner.num_paths >= 2 and not any(r.collided for r in records)
         runs.append([(r.success, r.steps, r.tip_path_m) for r in records])
     assert runs[0] == runs[1]
     with pytest.raises(ValueError):
-        DepthShieldPlanner(Still(), VIEWS, SIZE, plan_checks=-1)
+        DepthShieldPlanner(HoldStill(), VIEWS, SIZE, plan_checks=-1)
+
+
+def test_rrt_on_the_depth_map_plans_at_the_first_step_with_no_policy(blocked_env):
+    """`plan_first` (the `depth-rrt-*` baselines): with nothing inside but a held arm, the
+    planner plans on the first views at once instead of after the stall window, so the same
+    tasks are solved sooner."""
+    pytest.importorskip("ompl.base")
+    from clamgen.experiments.depth_planner import STUCK_STEPS, DepthShieldPlanner
+
+    seeds = TEST_SEEDS.seeds(3)
+    waiting = DepthShieldPlanner(HoldStill(), VIEWS, SIZE, margin_m=0.01, plan_checks=10_000)
+    first = DepthShieldPlanner(
+        HoldStill(), VIEWS, SIZE, margin_m=0.01, plan_checks=10_000, plan_first=True
+    )
+    waited, planned = evaluate(blocked_env, waiting, seeds), evaluate(blocked_env, first, seeds)
+    assert first.num_plans >= len(seeds)  # one at each episode's first step, at least
+    assert sum(r.success for r in planned) >= 2 and not any(r.collided for r in planned)
+    both = [(w, p) for w, p in zip(waited, planned, strict=True) if w.success and p.success]
+    # A held arm shows the planner the same views at the first step as after the window: with
+    # a budget in checks, the same path, taken STUCK_STEPS steps sooner.
+    assert both and all(w.steps - p.steps == STUCK_STEPS for w, p in both)
+
+
+def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
+    """`--policy depth-rrt-<V>views`: the hybrid's shield and planner of V views around a held
+    arm, planning first, on V rendered views; no other depth option goes with it."""
+    pytest.importorskip("ompl.base")
+    from clamgen.cli import main
+    from clamgen.experiments.depth_planner import (
+        RENDERED_VIEWS_IMAGE_SIZE,
+        DepthShieldPlanner,
+        depth_rrt,
+    )
+    from clamgen.experiments.policies import DEPTH_RRT_BASELINES, load_policy
+
+    for name, views in DEPTH_RRT_BASELINES.items():
+        policy, source, env_kwargs = load_policy(name)
+        guard = replace(HYBRID[views], plan_first=True)
+        assert isinstance(policy, DepthShieldPlanner) and policy.plan_first
+        assert isinstance(policy.policy, HoldStill) and source.startswith(name)
+        assert env_kwargs == {
+            "num_views": views,
+            "image_size": RENDERED_VIEWS_IMAGE_SIZE,
+            "obs_mode": "both",
+            **guard.env_kwargs(),
+        }
+        assert guard.describe().endswith("planner from the first step and when stuck")
+        with pytest.raises(ValueError, match="plans first"):
+            guard.flags()
+    with pytest.raises(ValueError, match="1 to 4 views"):
+        depth_rrt(0)
+    for extra in (["--depth-hybrid"], ["--depth-views", "2", "--depth-escapes"]):
+        with pytest.raises(SystemExit, match="drop the --depth-\\* options"):
+            main(["eval", "--policy", "depth-rrt-2views", *extra, "--out", str(tmp_path / "x")])
+    out = tmp_path / "depth_rrt"
+    args = ["--table", "2", "--policy", "depth-rrt-1view", "--families", "blocked"]
+    main(["eval", *args, "--num-tasks", "1", "--out", str(out)])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"] == "RRT on the depth map of 1 RGBD view, no learned policy (ours)"
+    assert row["family"] == "blocked" and row["num_tasks"] == 1
 
 
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
@@ -317,12 +368,12 @@ def test_random_escapes_inside_the_shield_move_a_stuck_policy_without_contact(bl
     from clamgen.experiments.stall import StallBurst
 
     guard = DepthGuard(escapes=True)
-    shielded = guard.wrap(Still(), VIEWS, SIZE)
+    shielded = guard.wrap(HoldStill(), VIEWS, SIZE)
     assert isinstance(shielded, DepthShield) and not isinstance(shielded, DepthShieldPlanner)
     assert isinstance(shielded.policy, StallBurst)
     runs = []
     for _ in range(2):
-        records = evaluate(blocked_env, guard.wrap(Still(), VIEWS, SIZE), TEST_SEEDS.seeds(3))
+        records = evaluate(blocked_env, guard.wrap(HoldStill(), VIEWS, SIZE), TEST_SEEDS.seeds(3))
         # A policy that never moves stalls at once: the escapes move the arm, never into contact.
         assert all(r.tip_path_m > 0.05 for r in records)
         assert not any(r.collided for r in records)
@@ -371,7 +422,7 @@ def test_the_planner_waits_for_the_escapes_it_is_given(blocked_env, escapes_firs
     from clamgen.experiments.stall import StallBurst
 
     guard = DepthGuard(planner=True, escapes=True, escapes_before_plan=escapes_first)
-    both = guard.wrap(Still(), VIEWS, SIZE)
+    both = guard.wrap(HoldStill(), VIEWS, SIZE)
     assert isinstance(both, DepthShieldPlanner) and isinstance(both.policy, StallBurst)
     log = _PlanLog(both)
     records = evaluate(blocked_env, both, TEST_SEEDS.seeds(3))
@@ -389,7 +440,7 @@ def test_the_planner_waits_for_the_escapes_it_is_given(blocked_env, escapes_firs
     ending = ("where the planner finds no path", "when stuck (1 before a plan)")[escapes_first]
     assert guard.describe().endswith(f" + planner when stuck + random escapes {ending}")
     with pytest.raises(ValueError, match="escapes_before_plan"):
-        DepthShieldPlanner(Still(), VIEWS, SIZE, escapes_before_plan=-1)
+        DepthShieldPlanner(HoldStill(), VIEWS, SIZE, escapes_before_plan=-1)
 
 
 @pytest.mark.parametrize("views", sorted(ESCAPES))
@@ -456,7 +507,8 @@ def test_escapes_with_the_planner_alone_are_the_escape_rows_shield_planning_firs
 def test_a_policy_that_sees_no_images_acts_through_the_wrapper_on_rendered_views(tmp_path):
     """`--depth-views V`: the env renders V views (at the shipped residuals' size) for the
     wrapper alone; the policy's own observation is unchanged, and the row says so."""
-    from clamgen.cli import DEPTH_VIEWS_IMAGE_SIZE, main
+    from clamgen.cli import main
+    from clamgen.experiments.depth_planner import RENDERED_VIEWS_IMAGE_SIZE
 
     for views in (1, 3):
         config = tyro.cli(EvalConfig, args=["--depth-hybrid", "--depth-views", str(views)])
@@ -464,7 +516,7 @@ def test_a_policy_that_sees_no_images_acts_through_the_wrapper_on_rendered_views
         shielded, source, kwargs = _with_depth_shield(IKInterpolationPolicy(), "ik", {}, config)
         guard = HYBRID[views]
         assert source == "ik" + guard.describe()
-        rendered = {"num_views": views, "image_size": DEPTH_VIEWS_IMAGE_SIZE, "obs_mode": "both"}
+        rendered = {"num_views": views, "image_size": RENDERED_VIEWS_IMAGE_SIZE, "obs_mode": "both"}
         assert kwargs == rendered | guard.env_kwargs()
         assert isinstance(shielded, DepthShieldPlanner)
     # A vision residual's own views are the wrapper's: --depth-views may repeat them.

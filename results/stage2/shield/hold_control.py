@@ -3,13 +3,14 @@
 
     python results/stage2/shield/hold_control.py [--views 3 2 1] [--wrapper hybrid]
 
-`Hold` commands zero joint motion every step. Inside a hybrid (`depth_planner.HYBRID`), the
-planner sees the arm stalled after its window (`STUCK_STEPS`) and plans on the depth map the
-views have shown, follows the path through the shield, and plans again when stuck (up to
-`MAX_PLANS`); inside `ESCAPES_PLANNER` the random escapes go on where it finds no path. The
-env renders each number of views at the shipped residuals' 64 pixels (and the presets'
-128-pixel depth cameras), as `clamgen eval --depth-views` does. Writes the Table 2 row of both
-families on the test tasks to `results/table2/hold_through_<wrapper>_<views>.json` / `.md`.
+`HoldStill` (`clamgen.policy`) commands zero joint motion every step. Inside a hybrid
+(`depth_planner.HYBRID`), the planner sees the arm stalled after its window (`STUCK_STEPS`)
+and plans on the depth map the views have shown, follows the path through the shield, and
+plans again when stuck (up to `MAX_PLANS`); inside `ESCAPES_PLANNER` the random escapes go on
+where it finds no path. The env renders each number of views at the shipped residuals' 64
+pixels (and the presets' 128-pixel depth cameras), as `clamgen eval --depth-views` does.
+Writes the Table 2 row of both families on the test tasks to
+`results/table2/hold_through_<wrapper>_<views>.json` / `.md`.
 """
 
 from __future__ import annotations
@@ -19,14 +20,13 @@ import shlex
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from clamgen.cli import DEPTH_VIEWS_IMAGE_SIZE, EvalConfig, depth_views_env, guarded_row_name
-from clamgen.experiments.depth_planner import ESCAPES_PLANNER, HYBRID
+from clamgen.cli import EvalConfig, depth_views_env, guarded_row_name
+from clamgen.experiments.depth_planner import ESCAPES_PLANNER, HYBRID, RENDERED_VIEWS_IMAGE_SIZE
 from clamgen.experiments.machine import describe
 from clamgen.experiments.tables import table2_row, write_table2
-from clamgen.robot import ur5
+from clamgen.policy import HoldStill
 
 TABLE2 = Path(__file__).resolve().parents[2] / "table2"
 WRAPPERS = {"hybrid": HYBRID, "escapes-planner": ESCAPES_PLANNER}
@@ -34,19 +34,9 @@ FIRST_SEED = EvalConfig.first_seed  # the test tasks of every Table 2 row
 NUM_TASKS = EvalConfig.num_tasks
 
 
-class Hold:
-    """The arm holds still: zero joint motion every step (a `Policy`)."""
-
-    def reset(self, env=None) -> None:
-        pass
-
-    def act(self, obs) -> np.ndarray:
-        return np.zeros(ur5.NUM_JOINTS, np.float32)
-
-
 def run(views: int, wrapper: str) -> Path:
     guard = WRAPPERS[wrapper][views]
-    policy = guard.wrap(Hold(), views, DEPTH_VIEWS_IMAGE_SIZE)
+    policy = guard.wrap(HoldStill(), views, RENDERED_VIEWS_IMAGE_SIZE)
     env_kwargs = depth_views_env({}, views) | guard.env_kwargs()
     name = guarded_row_name("no policy (the arm holds still)", guard.describe(), views)
     rows = [

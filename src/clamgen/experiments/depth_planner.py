@@ -73,6 +73,9 @@ class DepthShieldPlanner(DepthShield):
     depend on the machine's speed or load. `escapes_before_plan`: when `policy` escapes from
     stalls itself (it counts `episode_bursts`, as `stall.StallBurst`), the escapes it must have
     begun in an episode before a plan (each escape also restarts the stall window).
+    `plan_first`: plan at the first step of each episode too, on what the first views show,
+    instead of only once the policy stalls (with a policy that holds still, `HoldStill`: RRT
+    on the depth map alone, the `depth-rrt-*` baselines).
     `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`, `shadow_m`,
     `shadow_behind_surfaces`, `bridge_m`, `fine_depth_size`), passed on as they are.
     """
@@ -89,9 +92,11 @@ class DepthShieldPlanner(DepthShield):
         plan_margin_m: float | None = None,
         plan_checks: int = 0,
         escapes_before_plan: int = ESCAPES_BEFORE_PLAN,
+        plan_first: bool = False,
         **shield_options: Any,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
+        self.plan_first = plan_first
         if escapes_before_plan < 0:
             raise ValueError(f"escapes_before_plan must be >= 0, got {escapes_before_plan}")
         self.escapes_before_plan = escapes_before_plan
@@ -120,6 +125,7 @@ class DepthShieldPlanner(DepthShield):
         self._next = 0
         self._plans = 0
         self._escapes = 0  # escapes the policy inside has begun this episode
+        self._first_step = True
         self.episode_plan_time_s = 0.0
 
     def reset(self, env: Any | None = None) -> None:
@@ -134,8 +140,10 @@ class DepthShieldPlanner(DepthShield):
         if escapes is not None and escapes != self._escapes:
             self._escapes = escapes  # an escape began last step: its own window
             self.window.restart()
+        first, self._first_step = self._first_step, False
+        stalled = self.window.stalled(distance)
         if (
-            self.window.stalled(distance)
+            (stalled or (first and self.plan_first))
             and self._plans < MAX_PLANS
             and (escapes is None or escapes >= self.escapes_before_plan)
         ):
@@ -205,8 +213,10 @@ class DepthGuard:
     with `escapes` leaving stalls by random escapes inside the shield (`stall.StallBurst`
     around the policy: every step a policy step or a random command, plus the shield's
     checks), instead of by a plan or, with `planner` too, before one: the planner plans only
-    once the policy has begun `escapes_before_plan` escapes in the episode. The fields are
-    `clamgen eval|render`'s `--depth-*` options."""
+    once the policy has begun `escapes_before_plan` escapes in the episode, with `plan_first`
+    planning at the first step of each episode too. The fields but `plan_first` are
+    `clamgen eval|render`'s `--depth-*` options (`plan_first`: the `depth-rrt-*` baselines,
+    `depth_rrt`)."""
 
     margin_m: float = MARGIN_M
     planner: bool = False
@@ -217,6 +227,7 @@ class DepthGuard:
     plan_checks: int = 0
     escapes: bool = False
     escapes_before_plan: int = ESCAPES_BEFORE_PLAN
+    plan_first: bool = False
 
     def env_kwargs(self) -> dict[str, int]:
         """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
@@ -231,6 +242,7 @@ class DepthGuard:
             planning = {
                 "plan_checks": self.plan_checks,
                 "escapes_before_plan": self.escapes_before_plan,
+                "plan_first": self.plan_first,
             }
         return wrapper(
             policy,
@@ -245,7 +257,10 @@ class DepthGuard:
         )
 
     def flags(self) -> tuple[str, ...]:
-        """The `clamgen eval` options that give this guard."""
+        """The `clamgen eval` options that give this guard (a ValueError with `plan_first`,
+        which no option gives: the `depth-rrt-*` baselines plan first)."""
+        if self.plan_first:
+            raise ValueError("no clamgen eval option plans first: use a depth-rrt-* policy")
         flags = ["--depth-shield-m", str(self.margin_m)]
         flags += ["--depth-planner"] if self.planner else []
         if self.shadow_m is not None:
@@ -268,7 +283,8 @@ class DepthGuard:
         text += f", pixels bridged up to {self.bridge_m} m" if self.bridge_m else ""
         text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
         checks = f" ({self.plan_checks} checks a plan)" if self.plan_checks else ""
-        text += ")" + (f" + planner when stuck{checks}" if self.planner else "")
+        when = "from the first step and when stuck" if self.plan_first else "when stuck"
+        text += ")" + (f" + planner {when}{checks}" if self.planner else "")
         if self.escapes and self.planner:
             first = self.escapes_before_plan
             if first == 0:
@@ -304,3 +320,32 @@ used its plans (`ESCAPES_BEFORE_PLAN` = 0). On validation tasks in session 41 it
 300 blocked successes over the escapes alone from one view, and lost to the hybrid from three
 and two, whose planner does without the unseen-space test (`results/stage2/shield/README.md`,
 "Session 41"): Table 2 has it for one view."""
+
+
+RENDERED_VIEWS_IMAGE_SIZE = 64
+"""Pixels a side of the views the env renders for a wrapper around a policy that sees no
+images (`clamgen eval --depth-views`, the `depth-rrt-*` baselines): the shipped vision
+residuals' (their wrappers read these, or the 128-pixel depth cameras their presets add)."""
+
+
+def rendered_views_env(num_views: int) -> dict:
+    """Env options that render `num_views` RGBD views of `RENDERED_VIEWS_IMAGE_SIZE` pixels
+    beside the joints and goal, for a wrapper that reads them."""
+    return {"num_views": num_views, "image_size": RENDERED_VIEWS_IMAGE_SIZE, "obs_mode": "both"}
+
+
+def depth_rrt(num_views: int) -> tuple[DepthShieldPlanner, dict]:
+    """RRT on the depth map of `num_views` views, with no learned policy (a baseline beyond the
+    paper, the classical counterpart of a vision policy on the same sensors): the hybrid's
+    shield and planner of that number of views (`HYBRID`) around a policy that holds still,
+    planning at the first step of each episode on what the first views show, following the
+    path through the shield and planning again when it stalls (at most `MAX_PLANS` plans of
+    `PLAN_TIME_S`); while it has no path the arm holds still. Returns the policy and the env
+    options it observes with (the views and the guard's depth cameras)."""
+    from clamgen.policy import HoldStill
+
+    if num_views not in (1, 2, 3, 4):
+        raise ValueError(f"depth_rrt needs 1 to 4 views, got {num_views}")
+    guard = replace(HYBRID[min(num_views, max(HYBRID))], plan_first=True)
+    policy = guard.wrap(HoldStill(), num_views, RENDERED_VIEWS_IMAGE_SIZE)
+    return policy, rendered_views_env(num_views) | guard.env_kwargs()

@@ -9,14 +9,27 @@ from typing import Literal
 from clamgen.experiments.checkpoint import SHIPPED_POLICIES, resolve_policy_path
 from clamgen.policy import Policy
 
-BASELINES = ("ik", "rrt")
+DEPTH_RRT_BASELINES = {"depth-rrt-3views": 3, "depth-rrt-2views": 2, "depth-rrt-1view": 1}
+"""RRT on the depth map of that many rendered views, no learned policy
+(`depth_planner.depth_rrt`), by name."""
+BASELINES = ("ik", "rrt", *DEPTH_RRT_BASELINES)
 # The names above, as a type: command-line options typed `PolicyName | Path` list them.
 PolicyName = Literal[
-    "base", "residual-3views", "residual-2views", "residual-1view", "image-only", "ik", "rrt"
+    "base",
+    "residual-3views",
+    "residual-2views",
+    "residual-1view",
+    "image-only",
+    "ik",
+    "rrt",
+    "depth-rrt-3views",
+    "depth-rrt-2views",
+    "depth-rrt-1view",
 ]
 
 __all__ = [
     "BASELINES",
+    "DEPTH_RRT_BASELINES",
     "SHIPPED_POLICIES",
     "PolicyName",
     "load_policy",
@@ -30,9 +43,12 @@ def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
     """A policy, a description of where it came from, and the env options it observes with.
 
     `name`: "ik" (IK interpolation), "rrt" (OMPL RRTConnect with the full scene model),
-    "base" (the shipped joint policy) or the path of a policy file from `clamgen train` or
+    "depth-rrt-3views" / "-2views" / "-1view" (RRT-Connect on the depth map of that many
+    rendered views, no learned policy: `depth_planner.depth_rrt`), "base" (the shipped joint
+    policy), a shipped vision policy, or the path of a policy file from `clamgen train` or
     `clamgen train-residual`. The env options (views, image size, obstacle poses) are those
-    the policy was trained with; baselines and joint policies need none.
+    the policy was trained with, or the views the depth baselines plan on; the other
+    baselines and joint policies need none.
     Raises `clamgen.experiments.checkpoint.CheckpointError` for a bad policy file.
     """
     if name == "ik":
@@ -43,6 +59,11 @@ def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
         from clamgen.baselines import RRTPolicy
 
         return RRTPolicy(), "rrt_connect", {}
+    if name in DEPTH_RRT_BASELINES:
+        from clamgen.experiments.depth_planner import depth_rrt
+
+        policy, env_kwargs = depth_rrt(DEPTH_RRT_BASELINES[name])
+        return policy, f"{name} (RRT-Connect on the depth map, no learned policy)", env_kwargs
     from clamgen.experiments import checkpoint as ckpt
     from clamgen.experiments.evaluate import SACPolicy
     from clamgen.experiments.train import load_policy_agent

@@ -39,7 +39,8 @@ class RenderConfig:
     """Render rollouts of a policy to MP4 and GIF."""
 
     policy: PolicyName | Path = "base"
-    """A shipped policy, `ik` (IK interpolation), `rrt`, or a policy file."""
+    """A shipped policy, `ik` (IK interpolation), `rrt`, `depth-rrt-3views` / `-2views` /
+    `-1view` (RRT on the depth map of that many views), or a policy file."""
     env_id: str = ENV_IDS[1]
     """A CLAMGen env id (its task family: reach, obstacles, blocked, mixed)."""
     num_episodes: int = 3
