@@ -273,9 +273,10 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
         DepthShieldPlanner,
         depth_rrt,
     )
-    from clamgen.experiments.policies import DEPTH_RRT_BASELINES, load_policy
+    from clamgen.experiments.policies import DEPTH_RRT_BASELINES, load_policy, views_suffix
 
     for name, views in DEPTH_RRT_BASELINES.items():
+        assert name == f"depth-rrt-{views_suffix(views)}"
         policy, source, env_kwargs = load_policy(name)
         guard = replace(HYBRID[views], plan_first=True)
         assert isinstance(policy, DepthShieldPlanner) and policy.plan_first

@@ -21,8 +21,8 @@ beside them (`seeds/d<V>_seed<S>.continue.json`, `.offline.json`). Seed 5 is the
 student (`<V>v-dagger+2_test.json`, `../../table2/shielded_fine_residual-*.json`,
 `../../table2/hybrid_residual-*.json`). The policy files of 2- and 1-view seeds 7 and 8 (and
 1-view seed 9) went with a lost machine's `runs/`, so their shield rows have the other seeds
-only; seeds without a run directory are evaluated from their committed copies
-(`seeds/d<V>_seed<S>_policy.pt`). Prints, per number
+only; seeds are evaluated from their committed copies where there are some
+(`seeds/d<V>_seed<S>_policy.pt`), else from their run directories. Prints, per number
 of views and task family, the mean success and collision rate over seeds with rliable's 95%
 stratified-bootstrap interval and each seed's value, and writes shipped_seeds.txt; then the
 blocked-path issue's aims against the means over seeds (`aims_table`, with a control line
@@ -50,6 +50,7 @@ import numpy as np
 
 from clamgen.experiments.aggregate import seed_summary, write_seed_set
 from clamgen.experiments.depth_planner import ESCAPES, ESCAPES_PLANNER, HYBRID
+from clamgen.experiments.policies import views_suffix
 from clamgen.experiments.tables import ACT_AIM_MS  # the median act's aim, under
 
 HERE = Path(__file__).resolve().parent
@@ -140,7 +141,7 @@ def control_rows(views: int, kind: str) -> list[tuple[str, Path]]:
     """(who acts, Table 2 JSON) of each control row of a wrapper kind that was run."""
     if kind not in CONTROL_STEMS:
         return []
-    suffix = "1view" if views == 1 else f"{views}views"
+    suffix = views_suffix(views)
     found = []
     for who, words in CONTROLS.items():
         path = TABLE2 / f"{who}_through_{CONTROL_STEMS[kind]}_{suffix}.json"
@@ -179,10 +180,12 @@ def kinds(views: int) -> tuple[str, ...]:
 
 
 def policy_file(views: int, seed: int) -> Path | None:
-    """A seed's student: in its run directory, else its committed copy (None: neither)."""
+    """A seed's student: its committed copy, else its run directory's file (None: neither).
+    The committed copy first, so that an evaluation's command names a file a fresh clone
+    has."""
     for path in (
-        run_dir(views, seed) / "policy_iteration1.pt",
         OUT / f"d{views}_seed{seed}_policy.pt",
+        run_dir(views, seed) / "policy_iteration1.pt",
     ):
         if path.is_file():
             return path

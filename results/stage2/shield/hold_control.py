@@ -25,6 +25,7 @@ import torch
 from clamgen.cli import EvalConfig, depth_views_env, guarded_row_name
 from clamgen.experiments.depth_planner import ESCAPES_PLANNER, HYBRID, RENDERED_VIEWS_IMAGE_SIZE
 from clamgen.experiments.machine import describe
+from clamgen.experiments.policies import views_suffix
 from clamgen.experiments.tables import table2_row, write_table2
 from clamgen.policy import HoldStill
 
@@ -46,7 +47,7 @@ def run(views: int, wrapper: str) -> Path:
     for row in rows:
         print(f"{views} view(s), {wrapper}, {row.family}: success {row.success_rate:.3f}, "
               f"collisions {row.collision_rate:.3f}", flush=True)  # fmt: skip
-    suffix = "1view" if views == 1 else f"{views}views"
+    suffix = views_suffix(views)
     out = TABLE2 / f"hold_through_{wrapper.replace('-', '_')}_{suffix}"
     meta = {
         "policy": "hold (zero command)" + guard.describe(),

@@ -36,6 +36,7 @@ __all__ = [
     "policy_label",
     "policy_observation",
     "resolve_policy_path",
+    "views_suffix",
 ]
 
 
@@ -80,6 +81,11 @@ def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
         return SACPolicy(agent), source, kwargs
     agent, _ = load_policy_agent(path, payload)
     return SACPolicy(agent), source, {}
+
+
+def views_suffix(num_views: int) -> str:
+    """How policy and result names spell a number of views: "3views", "2views", "1view"."""
+    return f"{num_views}view{'s' * (num_views != 1)}"
 
 
 def policy_observation(policy: Policy) -> str:
