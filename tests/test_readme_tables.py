@@ -55,7 +55,17 @@ def test_readme_table2_rows_come_from_committed_results():
     assert not drifted, "README Table 2 rows that no committed JSON gives:\n" + "\n".join(drifted)
 
 
-@pytest.mark.parametrize("name", ["RRT with full model", "IK interpolation (no obstacle model)"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "RRT with full model",
+        "IK interpolation (no obstacle model)",
+        *(
+            f"RRT on the depth map of {v}, no learned policy (ours)"
+            for v in ("3 RGBD views", "1 RGBD view")
+        ),
+    ],
+)
 def test_baseline_rows_are_in_the_readme(name):
     assert name in {_row_name(line) for line in readme_table2()}
 
