@@ -21,11 +21,12 @@ install: $(VENV)/.installed
 # interpolation on 10 held-out blocked-path tasks (both success rates printed), GIFs of the
 # vision policy's first success and first failure there, then a picture of every camera view.
 # Between them, the same policy acting through the depth shield and planning on the depth map
-# when stuck (beyond the paper).
+# when stuck, and that planner on the same two views with no policy (beyond the paper).
 demo: install
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --out runs/demo/blocked_clamgen --overwrite
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy ik --out runs/demo/blocked_ik --overwrite
 	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy residual-2views --depth-hybrid --name "residual-2views + depth shield + planner when stuck" --out runs/demo/blocked_planned --overwrite
+	$(VENV)/bin/clamgen eval --table 2 --families blocked --num-tasks 10 --policy depth-rrt-2views --out runs/demo/blocked_depth_rrt --overwrite
 	$(VENV)/bin/clamgen render --policy residual-2views --env-id CLAMGen/ReachBlocked-v0 --num-episodes 1 --outcome success --out runs/demo/blocked_success --overwrite
 	$(VENV)/bin/clamgen render --policy residual-2views --env-id CLAMGen/ReachBlocked-v0 --num-episodes 1 --outcome failure --out runs/demo/blocked_failure --overwrite
 	$(VENV)/bin/clamgen demo --num-episodes 3
