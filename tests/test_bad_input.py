@@ -433,6 +433,11 @@ def test_eval_rrt_on_table1_says_it_plans_for_static_obstacle_tasks(workdir, cap
     note = "it is the baseline for static obstacle tasks (Table 2, `--table 2`)"
     assert note in out.with_suffix(".md").read_text()
     assert note in out.with_suffix(".json").read_text()
+    out = workdir / "depth_rrt"
+    args = ["--policy", "depth-rrt-1view", "--num-tasks", "1", "--speeds", "0.1"]
+    cli.main(["eval", *args, "--out", str(out)])
+    assert "note: RRT on the depth map plans to the target's position" in capsys.readouterr().out
+    assert "a moving target leaves its plans behind" in out.with_suffix(".md").read_text()
 
 
 # ---------------------------------------------------------------- --debug, exit status

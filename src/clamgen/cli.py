@@ -476,6 +476,7 @@ def evaluate_table(config: EvalConfig) -> list:
     from clamgen.experiments.config import check_table_seeds
     from clamgen.experiments.policies import load_policy, policy_observation
     from clamgen.experiments.tables import (
+        DEPTH_RRT_TABLE1_NOTE,
         RRT_TABLE1_NOTE,
         TABLE2_FAMILIES,
         table1,
@@ -533,6 +534,7 @@ def evaluate_table(config: EvalConfig) -> list:
     if config.table == 2:
         return _evaluate_table2(config, policy, source, label, out, env_kwargs)
     note = RRT_TABLE1_NOTE if config.policy == "rrt" else None
+    note = DEPTH_RRT_TABLE1_NOTE if str(config.policy) in DEPTH_RRT_BASELINES else note
     if note:
         print(f"note: {note}")
     print(f"evaluating {source} on {config.num_tasks} held-out tasks per speed ...")

@@ -46,6 +46,11 @@ RRT_TABLE1_NOTE = (
     "RRT plans once, open loop, to the target's position at reset: it is the baseline for static "
     "obstacle tasks (Table 2, `--table 2`); on moving targets its success is 0 by design"
 )
+DEPTH_RRT_TABLE1_NOTE = (
+    "RRT on the depth map plans to the target's position at the first step and again only when "
+    "the arm stalls: it is a baseline for static obstacle tasks (Table 2, "
+    "`--table 2`); a moving target leaves its plans behind"
+)
 
 
 @dataclass
