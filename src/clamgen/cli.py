@@ -507,6 +507,7 @@ def evaluate_table(config: EvalConfig) -> list:
         _check_policy(config.policy)
     except (ValueError, ImportError) as error:
         raise SystemExit(str(error)) from error
+    _check_depth_request(config)
     label = policy_label(config.policy)
     env_id = _policy_env_id(config.policy)
     out = config.out or Path("runs/eval") / f"table{config.table}_{label}"
@@ -566,9 +567,14 @@ def evaluate_table(config: EvalConfig) -> list:
 
 
 def _wants_depth_shield(config) -> bool:
-    """Whether any of the depth shield's options is given (`clamgen eval` and `render`);
-    SystemExit for --depth-views without one, or any for a `depth-rrt-*` baseline."""
-    wanted = config.depth_hybrid or _depth_options_given(config)
+    """Whether any of the depth shield's options is given (`clamgen eval` and `render`)."""
+    return config.depth_hybrid or _depth_options_given(config)
+
+
+def _check_depth_request(config) -> None:
+    """SystemExit, before any policy is loaded, for --depth-views without a depth wrapper's
+    options, or for any depth option with a `depth-rrt-*` baseline (which has its own)."""
+    wanted = _wants_depth_shield(config)
     if str(config.policy) in DEPTH_RRT_BASELINES and (wanted or config.depth_views):
         raise SystemExit(
             f"--policy {config.policy} plans on the depth map of its own views through the "
@@ -579,7 +585,6 @@ def _wants_depth_shield(config) -> bool:
             "--depth-views renders views for the depth wrapper: give its options too "
             "(--depth-hybrid, --depth-escapes or --depth-shield-m)"
         )
-    return wanted
 
 
 def _depth_options_given(config) -> bool:
@@ -821,6 +826,7 @@ def render(config) -> dict:
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.video import output_stem, render_env_rollouts, render_rollouts
 
+    _check_depth_request(config)
     label = policy_label(config.policy)
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
