@@ -86,7 +86,7 @@ def test_eval_command_errors_are_clear(tmp_path):
 
 
 def test_eval_with_an_action_scale_moves_the_arm_in_more_steps(tmp_path):
-    steps = {}
+    steps, paths = {}, {}
     for scale, stem in ((1.0, "full"), (0.5, "half")):
         config = EvalConfig(
             table=2,
@@ -99,10 +99,15 @@ def test_eval_with_an_action_scale_moves_the_arm_in_more_steps(tmp_path):
         (row,) = evaluate_table(config)
         data = json.loads((tmp_path / f"{stem}.json").read_text())
         assert data["rows"][0]["mean_steps"] == row.mean_steps
-        steps[stem] = row.mean_steps
+        steps[stem], paths[stem] = row.mean_steps, row.mean_tip_path_m
         assert row.reach_rate == 1.0
+        # Per task, in seed order: the steps and the tip's path, in the JSON too.
+        assert data["rows"][0]["task_steps"] == row.task_steps and len(row.task_steps) == 2
+        assert np.mean(row.task_steps) == row.mean_steps
+        assert np.mean(row.task_tip_path_m) == pytest.approx(row.mean_tip_path_m, abs=1e-5)
     assert data["policy"] == "ik_interpolation, actions scaled by 0.5"
     assert steps["half"] > 1.5 * steps["full"]  # half-length steps along the same path
+    assert paths["half"] == pytest.approx(paths["full"], rel=0.05)  # ... the same path
 
 
 def test_wilson_interval_matches_hand_computed_values():

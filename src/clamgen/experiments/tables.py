@@ -262,6 +262,11 @@ class ObstacleRow:
     mean_steps: float | None = None
     """Steps per episode (it ends at the target, or after `MAX_EPISODE_STEPS`): how fast the
     arm gets there; None in rows measured before it was recorded."""
+    task_steps: list[int] | None = None
+    task_tip_path_m: list[float] | None = None
+    """Steps and the tip's path length (m) per task, in seed order: how fast and how far the
+    arm went, to compare rows on the tasks both solve; None in rows measured before session
+    43."""
 
     @property
     def num_successes(self) -> int:
@@ -363,6 +368,8 @@ def table2_row(
         family=family,
         first_seed=int(seeds[0]),
         mean_steps=float(np.mean([r.steps for r in records])),
+        task_steps=[int(r.steps) for r in records],
+        task_tip_path_m=[round(float(r.tip_path_m), 5) for r in records],
     )
 
 
