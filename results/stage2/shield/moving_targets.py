@@ -1,0 +1,78 @@
+"""Exploratory (session 43): a moving target on the obstacle tasks, where a plan to the
+target's position goes stale. Validation tasks only; nothing is chosen on them.
+
+    python results/stage2/shield/moving_targets.py [--num-tasks 40]
+
+The shipped `residual-2views` alone and in its hybrid (`--depth-hybrid`), and RRT on the depth
+map of the same two views (`depth-rrt-2views`), on `--num-tasks` validation tasks (offset
+450000 into the validation range) of each obstacle family with the target moving at 0, 0.05,
+0.1 and 0.2 m/s (the paper's speeds; `ReachEnv(target_speed=...)`, reflected at the goal box's
+faces). The blocked family's tasks are sampled so that the blind path to the target's first
+position collides; a moving target may leave that position. One line per (family, speed,
+row) to `moving_targets.jsonl`: successes, collisions and the mean steps of the successes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import VALIDATION_SEEDS
+from clamgen.experiments.depth_planner import HYBRID
+from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.policies import load_policy
+
+HERE = Path(__file__).resolve().parent
+OFFSET = 450_000
+SPEEDS = (0.0, 0.05, 0.1, 0.2)
+ROWS = ("residual-2views", "residual-2views + hybrid", "depth-rrt-2views")
+
+
+def policy_of(row: str):
+    policy, _, env_kwargs = load_policy(row.split(" + ")[0])
+    if row.endswith("hybrid"):
+        guard = HYBRID[env_kwargs["num_views"]]
+        policy = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
+        env_kwargs = env_kwargs | guard.env_kwargs()
+    return policy, env_kwargs
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--num-tasks", type=int, default=40)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + OFFSET)
+    out = HERE / "moving_targets.jsonl"
+    with out.open("w") as f:
+        for family in ("blocked", "obstacles"):
+            for speed in SPEEDS:
+                for row in ROWS:
+                    policy, env_kwargs = policy_of(row)
+                    env = ReachEnv(
+                        num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs
+                    )
+                    records = evaluate(env, policy, seeds)
+                    env.close()
+                    solved = [r.steps for r in records if r.success]
+                    line = {
+                        "family": family,
+                        "speed": speed,
+                        "row": row,
+                        "num_tasks": len(records),
+                        "successes": len(solved),
+                        "collisions": sum(r.collided for r in records),
+                        "mean_steps_of_successes": float(np.mean(solved)) if solved else None,
+                    }
+                    print(json.dumps(line), flush=True)
+                    f.write(json.dumps(line) + "\n")
+    print("wrote", out)
+
+
+if __name__ == "__main__":
+    main()
