@@ -15,10 +15,10 @@ another CPU, and the plans have a time budget).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
+from base_control import rows, write_markdown  # (this directory: the script's own)
 
 from clamgen.experiments.policies import views_suffix
 from clamgen.experiments.tables import paired_count
@@ -27,10 +27,6 @@ HERE = Path(__file__).resolve().parent
 RUNS = HERE / "arrival"
 PAIRS = (("residual", "the residual alone"), ("hybrid", "the residual in its hybrid"))
 """The rows set against the depth-map baseline (`depth-rrt`), by file stem."""
-
-
-def rows(path: Path) -> dict[str, dict]:
-    return {row["family"]: row for row in json.loads(path.read_text())["rows"]}
 
 
 def compare(row: dict, baseline: dict) -> str:
@@ -73,10 +69,7 @@ def main() -> None:
                 if path.exists():
                     cells = compare(rows(path)[family], baseline[family])
                     lines.append(f"| {views} | {family} | {words} | {cells} |")
-    out = HERE / "arrival.md"
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    print("wrote", out)
+    write_markdown(lines, HERE / "arrival.md")
 
 
 if __name__ == "__main__":

@@ -50,6 +50,13 @@ def rows(path: Path) -> dict[str, dict]:
     return {row["family"]: row for row in json.loads(path.read_text())["rows"]}
 
 
+def write_markdown(lines: list[str], out: Path) -> None:
+    """Write `lines` as the Markdown file `out`, and print them."""
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print("wrote", out)
+
+
 def cell(row: dict) -> str:
     text = f"{row['success_rate']:.3f} / {row['collision_rate']:.3f} / {row['median_act_ms']:.2f}"
     return text + (f" (p99 {row['act_p99_ms']:.1f})" if "act_p99_ms" in row else "")
@@ -87,10 +94,7 @@ def main() -> None:
                 f"({pair.p_value:.2g}) | "
                 f"{cell(hold[family]) if hold else '-'} |"
             )
-    out = HERE / "base_control.md"
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    print("wrote", out)
+    write_markdown(lines, HERE / "base_control.md")
 
 
 if __name__ == "__main__":

@@ -14,8 +14,9 @@ only the baseline solves and how many only the other row, with the exact two-sid
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+
+from base_control import rows, write_markdown  # (this directory: the script's own)
 
 from clamgen.experiments.policies import views_suffix
 from clamgen.experiments.tables import paired_count
@@ -32,10 +33,6 @@ OTHERS = {
     "RRT with the full scene model": lambda views: TABLE2 / "rrt.json",
 }
 """The rows set beside each baseline, by what acts: their Table 2 files by number of views."""
-
-
-def rows(path: Path) -> dict[str, dict]:
-    return {row["family"]: row for row in json.loads(path.read_text())["rows"]}
 
 
 def cell(row: dict) -> str:
@@ -71,10 +68,7 @@ def main() -> None:
                     f"| {views} | {family} | {cell(baseline[family])} | {words} | {cell(other)} "
                     f"| {pair.first_only} / {pair.second_only} ({pair.p_value:.2g}) |"
                 )
-    out = HERE / "depth_rrt_compare.md"
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    print("wrote", out)
+    write_markdown(lines, HERE / "depth_rrt_compare.md")
 
 
 if __name__ == "__main__":
