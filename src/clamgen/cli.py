@@ -425,8 +425,9 @@ class EvalConfig:
     extra sensor, beyond the paper); the policy still acts on its own images. 0: the
     policy's own images."""
     depth_plan_checks: int = 0
-    """With --depth-planner: each plan may spend this many validity checks instead of 1 s, so
-    that the episodes do not depend on the machine's speed or load (about 10,000 checks a
+    """With --depth-planner (or a `depth-rrt-*` baseline): each plan may spend this many
+    validity checks instead of 1 s, so that the episodes do not depend on the machine's speed
+    or load (about 10,000 checks a
     second on one core here; `depth_planner.DepthShieldPlanner`). 0: the time budget."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
@@ -517,6 +518,7 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source, env_kwargs = load_policy(config.policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
+    policy, source, env_kwargs = _with_plan_checks(policy, source, env_kwargs, config)
     if config.lookahead_candidates != 0:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
@@ -567,19 +569,28 @@ def evaluate_table(config: EvalConfig) -> list:
 
 
 def _wants_depth_shield(config) -> bool:
-    """Whether any of the depth shield's options is given (`clamgen eval` and `render`)."""
+    """Whether the policy acts through a depth wrapper built from the depth shield's options
+    (`clamgen eval` and `render`); a `depth-rrt-*` baseline is one already."""
+    if str(config.policy) in DEPTH_RRT_BASELINES:
+        return False
     return config.depth_hybrid or _depth_options_given(config)
 
 
 def _check_depth_request(config) -> None:
     """SystemExit, before any policy is loaded, for --depth-views without a depth wrapper's
-    options, or for any depth option with a `depth-rrt-*` baseline (which has its own)."""
+    options, or for a `depth-rrt-*` baseline with any depth option but --depth-plan-checks
+    (it has the others' setting already)."""
+    if str(config.policy) in DEPTH_RRT_BASELINES:
+        others = dataclasses.replace(config, depth_plan_checks=0)
+        if config.depth_hybrid or _depth_options_given(others) or config.depth_views:
+            raise SystemExit(
+                f"--policy {config.policy} plans on the depth map of its own views through the "
+                "hybrid's shield already: drop the --depth-* options (but --depth-plan-checks)"
+            )
+        if config.depth_plan_checks < 0:
+            raise SystemExit(f"--depth-plan-checks must be >= 0, got {config.depth_plan_checks}")
+        return
     wanted = _wants_depth_shield(config)
-    if str(config.policy) in DEPTH_RRT_BASELINES and (wanted or config.depth_views):
-        raise SystemExit(
-            f"--policy {config.policy} plans on the depth map of its own views through the "
-            "hybrid's shield already: drop the --depth-* options"
-        )
     if config.depth_views and not wanted:
         raise SystemExit(
             "--depth-views renders views for the depth wrapper: give its options too "
@@ -751,6 +762,19 @@ def _with_action_scale(policy, source: str, scale: float):
         raise SystemExit(f"bad --action-scale: {error}") from error
 
 
+def _with_plan_checks(policy, source: str, env_kwargs: dict, config):
+    """A `depth-rrt-*` baseline with --depth-plan-checks N: built again with plans of N
+    validity checks (the same plans on any machine), its source saying so; anything else
+    unchanged."""
+    checks, name = config.depth_plan_checks, str(config.policy)
+    if name not in DEPTH_RRT_BASELINES or not checks:
+        return policy, source, env_kwargs
+    from clamgen.experiments.depth_planner import depth_rrt
+
+    policy, env_kwargs = depth_rrt(DEPTH_RRT_BASELINES[name], checks)
+    return policy, f"{source}, {checks} checks a plan", env_kwargs
+
+
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):
     """`policy` planning with `candidates` lookahead rollouts keeping clearance `margin_m`;
     SystemExit unless it is a privileged residual."""
@@ -831,6 +855,7 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
+        policy, _, env_kwargs = _with_plan_checks(policy, "", env_kwargs, config)
         policy, _ = _with_action_scale(policy, "", config.action_scale)
         if _wants_depth_shield(config):
             policy, _, env_kwargs = _with_depth_shield(policy, "", env_kwargs, config)
@@ -920,6 +945,12 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
     )
 
     name = config.name or TABLE2_ROW_NAMES.get(str(config.policy), label)
+    if (
+        config.name is None
+        and str(config.policy) in DEPTH_RRT_BASELINES
+        and config.depth_plan_checks
+    ):
+        name += f", {config.depth_plan_checks} checks a plan"
     rows = []
     for family in config.families:
         print(f"evaluating {source} on {config.num_tasks} held-out {FAMILY_TITLES[family]} ...")

@@ -292,15 +292,29 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
             guard.flags()
     with pytest.raises(ValueError, match="1 to 4 views"):
         depth_rrt(0)
+    assert depth_rrt(2, plan_checks=5000)[0].rrt.max_checks == 5000
+    assert depth_rrt(2)[0].rrt.max_checks is None  # the time budget
     for extra in (["--depth-hybrid"], ["--depth-views", "2", "--depth-escapes"]):
-        with pytest.raises(SystemExit, match="drop the --depth-\\* options"):
+        with pytest.raises(SystemExit, match="drop the --depth-\\* options \\(but"):
             main(["eval", "--policy", "depth-rrt-2views", *extra, "--out", str(tmp_path / "x")])
+    with pytest.raises(SystemExit, match="--depth-plan-checks must be >= 0"):
+        main(["eval", "--policy", "depth-rrt-2views", "--depth-plan-checks", "-1"])
     out = tmp_path / "depth_rrt"
     args = ["--table", "2", "--policy", "depth-rrt-1view", "--families", "blocked"]
     main(["eval", *args, "--num-tasks", "1", "--out", str(out)])
     row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
     assert row["name"] == "RRT on the depth map of 1 RGBD view, no learned policy (ours)"
     assert row["family"] == "blocked" and row["num_tasks"] == 1
+    # With a budget in checks: the same episodes twice, the row saying so.
+    runs = []
+    for run in ("a", "b"):
+        out = tmp_path / f"depth_rrt_checks_{run}"
+        checks = ["--depth-plan-checks", "10000"]
+        main(["eval", *args, *checks, "--num-tasks", "2", "--out", str(out)])
+        runs.append(json.loads(out.with_suffix(".json").read_text())["rows"][0])
+    assert runs[0]["name"].endswith("no learned policy (ours), 10000 checks a plan")
+    assert runs[0]["task_steps"] == runs[1]["task_steps"]
+    assert runs[0]["task_tip_path_m"] == runs[1]["task_tip_path_m"]
 
 
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():

@@ -334,18 +334,19 @@ def rendered_views_env(num_views: int) -> dict:
     return {"num_views": num_views, "image_size": RENDERED_VIEWS_IMAGE_SIZE, "obs_mode": "both"}
 
 
-def depth_rrt(num_views: int) -> tuple[DepthShieldPlanner, dict]:
+def depth_rrt(num_views: int, plan_checks: int = 0) -> tuple[DepthShieldPlanner, dict]:
     """RRT on the depth map of `num_views` views, with no learned policy (a baseline beyond the
     paper, the classical counterpart of a vision policy on the same sensors): the hybrid's
     shield and planner of that number of views (`HYBRID`) around a policy that holds still,
     planning at the first step of each episode on what the first views show, following the
     path through the shield and planning again when it stalls (at most `MAX_PLANS` plans of
-    `PLAN_TIME_S`); while it has no path the arm holds still. Returns the policy and the env
+    `PLAN_TIME_S`, or with `plan_checks` > 0 that many validity checks, the same plans on any
+    machine); while it has no path the arm holds still. Returns the policy and the env
     options it observes with (the views and the guard's depth cameras)."""
     from clamgen.policy import HoldStill
 
     if num_views not in (1, 2, 3, 4):
         raise ValueError(f"depth_rrt needs 1 to 4 views, got {num_views}")
-    guard = replace(HYBRID[min(num_views, max(HYBRID))], plan_first=True)
+    guard = replace(HYBRID[min(num_views, max(HYBRID))], plan_first=True, plan_checks=plan_checks)
     policy = guard.wrap(HoldStill(), num_views, RENDERED_VIEWS_IMAGE_SIZE)
     return policy, rendered_views_env(num_views) | guard.env_kwargs()
