@@ -427,8 +427,8 @@ class EvalConfig:
     depth_plan_checks: int = 0
     """With --depth-planner (or a `depth-rrt-*` baseline): each plan may spend this many
     validity checks instead of 1 s, so that the episodes do not depend on the machine's speed
-    or load (about 10,000 checks a
-    second on one core here; `depth_planner.DepthShieldPlanner`). 0: the time budget."""
+    or load (about 10,000 checks a second on one core here;
+    `depth_planner.DepthShieldPlanner`). 0: the time budget."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
     joint command, then the policy again, every step through the shield, which stops an escape
