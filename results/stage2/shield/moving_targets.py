@@ -1,15 +1,17 @@
 """Exploratory (session 43): a moving target on the obstacle tasks, where a plan to the
 target's position goes stale. Validation tasks only; nothing is chosen on them.
 
-    python results/stage2/shield/moving_targets.py [--num-tasks 40]
+    python results/stage2/shield/moving_targets.py [--views 2] [--num-tasks 40]
 
-The shipped `residual-2views` alone and in its hybrid (`--depth-hybrid`), and RRT on the depth
-map of the same two views (`depth-rrt-2views`), on `--num-tasks` validation tasks (offset
+The shipped vision residual of each of `--views` alone and in its hybrid (`--depth-hybrid`),
+and RRT on the depth map of the same views (`depth-rrt-*`), on `--num-tasks` validation tasks
+(offset
 450000 into the validation range) of each obstacle family with the target moving at 0, 0.05,
 0.1 and 0.2 m/s (the paper's speeds; `ReachEnv(target_speed=...)`, reflected at the goal box's
 faces). The blocked family's tasks are sampled so that the blind path to the target's first
-position collides; a moving target may leave that position. One line per (family, speed,
-row) to `moving_targets.jsonl`: successes, collisions and the mean steps of the successes.
+position collides; a moving target may leave that position. One line per (views, family,
+speed, row) in `moving_targets.jsonl` (the lines of the other numbers of views kept):
+successes, collisions and the mean steps of the successes.
 """
 
 from __future__ import annotations
@@ -25,12 +27,13 @@ from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import HYBRID
 from clamgen.experiments.evaluate import evaluate
-from clamgen.experiments.policies import load_policy
+from clamgen.experiments.policies import load_policy, views_suffix
 
 HERE = Path(__file__).resolve().parent
 OFFSET = 450_000
 SPEEDS = (0.0, 0.05, 0.1, 0.2)
-ROWS = ("residual-2views", "residual-2views + hybrid", "depth-rrt-2views")
+ROWS = ("residual-{}", "residual-{} + hybrid", "depth-rrt-{}")
+"""The rows by number of views (`views_suffix`)."""
 
 
 def policy_of(row: str):
@@ -42,35 +45,47 @@ def policy_of(row: str):
     return policy, env_kwargs
 
 
+def measure(row: str, family: str, speed: float, seeds) -> dict:
+    """One row on `seeds` of `family` with the target moving at `speed`."""
+    policy, env_kwargs = policy_of(row)
+    env = ReachEnv(num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs)
+    records = evaluate(env, policy, seeds)
+    env.close()
+    solved = [r.steps for r in records if r.success]
+    return {
+        "family": family,
+        "speed": speed,
+        "row": row,
+        "num_tasks": len(records),
+        "successes": len(solved),
+        "collisions": sum(r.collided for r in records),
+        "mean_steps_of_successes": float(np.mean(solved)) if solved else None,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--num-tasks", type=int, default=40)
+    parser.add_argument("--views", type=int, nargs="+", default=[2], choices=(3, 2, 1))
     args = parser.parse_args()
     torch.set_num_threads(1)
     seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + OFFSET)
     out = HERE / "moving_targets.jsonl"
+    kept = []
+    if out.exists():
+        lines = [json.loads(line) for line in out.read_text().splitlines()]
+        kept = [line for line in lines if line["views"] not in args.views]
     with out.open("w") as f:
-        for family in ("blocked", "obstacles"):
-            for speed in SPEEDS:
-                for row in ROWS:
-                    policy, env_kwargs = policy_of(row)
-                    env = ReachEnv(
-                        num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs
-                    )
-                    records = evaluate(env, policy, seeds)
-                    env.close()
-                    solved = [r.steps for r in records if r.success]
-                    line = {
-                        "family": family,
-                        "speed": speed,
-                        "row": row,
-                        "num_tasks": len(records),
-                        "successes": len(solved),
-                        "collisions": sum(r.collided for r in records),
-                        "mean_steps_of_successes": float(np.mean(solved)) if solved else None,
-                    }
-                    print(json.dumps(line), flush=True)
-                    f.write(json.dumps(line) + "\n")
+        for line in kept:
+            f.write(json.dumps(line) + "\n")
+        for views in args.views:
+            for family in ("blocked", "obstacles"):
+                for speed in SPEEDS:
+                    for row in (row.format(views_suffix(views)) for row in ROWS):
+                        line = {"views": views, **measure(row, family, speed, seeds)}
+                        print(json.dumps(line), flush=True)
+                        f.write(json.dumps(line) + "\n")
+                        f.flush()
     print("wrote", out)
 
 
