@@ -220,6 +220,13 @@ def test_eval_and_render_list_the_valid_policies(workdir):
     assert "run is a directory; its policy file is run/policy.pt" in message
 
 
+def test_eval_target_speed_is_table2s_and_not_negative(workdir):
+    message = refused(workdir, "eval", "--policy", "ik", "--target-speed", "0.1")
+    assert "--target-speed is Table 2's (Table 1 takes --speeds)" in message
+    message = refused(workdir, "eval", "--table", "2", "--policy", "ik", "--target-speed", "-1")
+    assert "--target-speed must be finite and >= 0 m/s, got -1.0" in message
+
+
 def test_eval_lookahead_needs_a_privileged_residual(workdir):
     message = refused(workdir, "eval", "--policy", "base", "--lookahead-candidates", "4")
     assert "--lookahead-candidates needs a privileged residual" in message

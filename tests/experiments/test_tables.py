@@ -110,6 +110,28 @@ def test_eval_with_an_action_scale_moves_the_arm_in_more_steps(tmp_path):
     assert paths["half"] == pytest.approx(paths["full"], rel=0.05)  # ... the same path
 
 
+def test_table2_with_a_moving_target_says_so(tmp_path):
+    """`--target-speed` (beyond the paper): the same tasks with the target moving; the row
+    records the speed and its name says it, so no paper number is set beside it."""
+    rows = {}
+    for speed in (0.0, 0.2):
+        config = EvalConfig(
+            table=2,
+            policy="ik",
+            num_tasks=3,
+            families=("obstacles",),
+            target_speed=speed,
+            out=tmp_path / ("moving" if speed else "static"),
+        )
+        (rows[speed],) = evaluate_table(config)
+    moving = rows[0.2]
+    assert moving.target_speed == 0.2 and rows[0.0].target_speed == 0.0
+    assert moving.name == "IK interpolation (no obstacle model), target moving at 0.2 m/s"
+    saved = json.loads((tmp_path / "moving.json").read_text())["rows"][0]
+    assert saved["target_speed"] == 0.2
+    assert moving.task_steps != rows[0.0].task_steps  # the target moved: other episodes
+
+
 def test_wilson_interval_matches_hand_computed_values():
     # 50/100: centre 0.5, half width 1.96 sqrt(0.0025 + 1.96^2 / 40000) / (1 + 1.96^2 / 100).
     low, high = wilson_interval(50, 100)

@@ -262,6 +262,9 @@ class ObstacleRow:
     mean_steps: float | None = None
     """Steps per episode (it ends at the target, or after `MAX_EPISODE_STEPS`): how fast the
     arm gets there; None in rows measured before it was recorded."""
+    target_speed: float = 0.0
+    """The target's speed, m/s: 0 in the paper's Table 2 (static targets); a moving target
+    among the obstacles is beyond the paper (`clamgen eval --table 2 --target-speed`)."""
     task_steps: list[int] | None = None
     task_tip_path_m: list[float] | None = None
     """Steps and the tip's path length (m) per task, in seed order: how fast and how far the
@@ -332,8 +335,9 @@ def table2_row(
     family: str = "obstacles",
     first_seed: int = TEST_SEEDS.start,
 ) -> ObstacleRow:
-    """One Table 2 row: `policy` on `num_tasks` held-out tasks (static targets) of `family`,
-    seeds `first_seed`, `first_seed` + 1, ... (test seeds only: a ValueError otherwise).
+    """One Table 2 row: `policy` on `num_tasks` held-out tasks of `family`, seeds `first_seed`,
+    `first_seed` + 1, ... (test seeds only: a ValueError otherwise); static targets unless
+    `env_kwargs` has a `target_speed`.
 
     For a planner the per-task planning time is reported: for one with `last_plan_time_s`
     (the RRT baseline) it is spent in `reset`, before the first action, and is not part of the
@@ -368,6 +372,7 @@ def table2_row(
         family=family,
         first_seed=int(seeds[0]),
         mean_steps=float(np.mean([r.steps for r in records])),
+        target_speed=float((env_kwargs or {}).get("target_speed", 0.0)),
         task_steps=[int(r.steps) for r in records],
         task_tip_path_m=[round(float(r.tip_path_m), 5) for r in records],
     )
