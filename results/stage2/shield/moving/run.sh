@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# A moving target on the Table 2 test tasks (results/stage2/shield/README.md, "A moving
+# target on the test tasks"): the shipped residuals alone and in their hybrids, and the
+# depth-map baselines, with the target moving at each speed. Usage: run.sh SPEED VIEWS...
+# (e.g. run.sh 0.1 3views 2views 1view); an evaluation whose JSON exists is skipped.
+set -euo pipefail
+cd "$(dirname "$0")/../../../.."
+out=results/stage2/shield/moving
+speed=$1; shift
+for v in "$@"; do
+    for row in residual hybrid depth-rrt; do
+        stem="$out/$row-$v-$speed"
+        [ -f "$stem.json" ] && continue
+        case $row in
+            residual) args=(--policy "residual-$v") ;;
+            hybrid) args=(--policy "residual-$v" --depth-hybrid) ;;
+            depth-rrt) args=(--policy "depth-rrt-$v") ;;
+        esac
+        python -m clamgen eval --table 2 "${args[@]}" --target-speed "$speed" --out "$stem"
+    done
+done
