@@ -2,14 +2,15 @@
 # A moving target on the Table 2 test tasks (results/stage2/shield/README.md, "A moving
 # target on the test tasks"): the shipped residuals alone and in their hybrids, and the
 # depth-map baselines, with the target moving at each speed. Usage: run.sh SPEED VIEWS...
-# (e.g. run.sh 0.1 3views 2views 1view); an evaluation whose JSON exists is skipped.
+# (e.g. run.sh 0.1 3views 2views 1view: files <row>-<views>-0p1.*); an evaluation whose JSON
+# exists is skipped.
 set -euo pipefail
 cd "$(dirname "$0")/../../../.."
 out=results/stage2/shield/moving
 speed=$1; shift
 for v in "$@"; do
     for row in residual hybrid depth-rrt; do
-        stem="$out/$row-$v-$speed"
+        stem="$out/$row-$v-${speed/./p}"  # 0.1 -> 0p1: a dot would read as a file suffix
         [ -f "$stem.json" ] && continue
         case $row in
             residual) args=(--policy "residual-$v") ;;
