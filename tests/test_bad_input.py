@@ -227,6 +227,15 @@ def test_eval_target_speed_is_table2s_and_not_negative(workdir):
     assert "--target-speed must be finite and >= 0 m/s, got -1.0" in message
 
 
+def test_eval_and_render_refuse_an_output_stem_whose_dot_would_be_a_suffix(workdir):
+    """`--out run-0.1` would write run-0.json (the files' suffixes replace '.1')."""
+    for command in ("eval", "render"):
+        message = refused(workdir, command, "--policy", "ik", "--out", "run-0.1")
+        assert "its '.1' would be read as a file suffix and replaced" in message
+        assert "(e.g. run-0p1)" in message
+    assert not list(workdir.glob("run-0*"))
+
+
 def test_eval_lookahead_needs_a_privileged_residual(workdir):
     message = refused(workdir, "eval", "--policy", "base", "--lookahead-candidates", "4")
     assert "--lookahead-candidates needs a privileged residual" in message

@@ -246,12 +246,14 @@ def _check_policy(name: str | Path) -> None:
 
 
 def _refuse_to_overwrite(stem: Path, suffixes: tuple[str, ...], overwrite: bool) -> None:
-    """A FileExistsError when an output `stem` + suffix exists and `overwrite` is False."""
-    existing = [stem.with_suffix(s) for s in suffixes if stem.with_suffix(s).exists()]
-    if existing and not overwrite:
-        raise FileExistsError(
-            f"{existing[0]} exists; pass --overwrite to replace it, or --out to write elsewhere"
-        )
+    """`outputs.check_output_stem`: a FileExistsError when an output `stem` + suffix exists
+    and `overwrite` is False; SystemExit for a stem with a stray suffix."""
+    from clamgen.experiments.outputs import check_output_stem
+
+    try:
+        check_output_stem(stem, suffixes, overwrite)
+    except ValueError as error:
+        raise SystemExit(str(error)) from error
 
 
 def _option_value(argv: list[str], flag: str) -> str | None:

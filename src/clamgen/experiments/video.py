@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from clamgen.envs import ENV_IDS, ENV_TASKS, ReachEnv
 from clamgen.experiments.evaluate import run_episode
+from clamgen.experiments.outputs import check_output_stem
 from clamgen.experiments.policies import PolicyName
 from clamgen.experiments.stall import ESCAPES_BEFORE_PLAN
 from clamgen.sim import constants as C
@@ -161,16 +162,10 @@ class RolloutRenderer:
 
 def output_stem(config: RenderConfig, label: str) -> Path:
     """Where `config` writes (`config.out`, default runs/videos/`label`); a FileExistsError
-    when one of its files exists and `config.overwrite` is False."""
+    when one of its files exists and `config.overwrite` is False, a ValueError for a stem
+    with a stray suffix (`outputs.check_output_stem`)."""
     out = config.out or Path("runs/videos") / label
-    existing = [
-        out.with_suffix(s) for s in (".mp4", ".gif", ".json") if out.with_suffix(s).exists()
-    ]
-    if existing and not config.overwrite:
-        raise FileExistsError(
-            f"{existing[0]} exists; pass --overwrite to replace it, or --out to write elsewhere"
-        )
-    return out
+    return check_output_stem(out, (".mp4", ".gif", ".json"), config.overwrite)
 
 
 def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -> dict:
