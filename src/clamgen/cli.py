@@ -481,8 +481,6 @@ def evaluate_table(config: EvalConfig) -> list:
         raise SystemExit(f"--table must be 1 or 2, got {config.table}")
     if config.target_speed != 0 and config.table != 2:
         raise SystemExit("--target-speed is Table 2's (Table 1 takes --speeds)")
-    if not (np.isfinite(config.target_speed) and config.target_speed >= 0):
-        raise SystemExit(f"--target-speed must be finite and >= 0 m/s, got {config.target_speed}")
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.config import check_table_seeds
     from clamgen.experiments.policies import load_policy, policy_observation
@@ -496,6 +494,10 @@ def evaluate_table(config: EvalConfig) -> list:
     )
     from clamgen.tasks.reach import validate_speed
 
+    try:
+        validate_speed(config.target_speed)
+    except ValueError as error:
+        raise SystemExit(f"bad --target-speed: {error}") from error
     if config.num_tasks < 1:
         raise SystemExit("num_tasks must be >= 1")
     try:
@@ -597,8 +599,7 @@ def _check_depth_request(config) -> None:
                 f"--policy {config.policy} plans on the depth map of its own views through the "
                 "hybrid's shield already: drop the --depth-* options (but --depth-plan-checks)"
             )
-        if config.depth_plan_checks < 0:
-            raise SystemExit(f"--depth-plan-checks must be >= 0, got {config.depth_plan_checks}")
+        _plan_checks(config)
         return
     wanted = _wants_depth_shield(config)
     if config.depth_views and not wanted:
@@ -663,10 +664,10 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     if guard.planner and find_spec("ompl") is None:
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
     try:
-        shielded = guard.wrap(policy, views, env_kwargs["image_size"])
+        shielded, env_kwargs = guard.around(policy, env_kwargs)
     except ValueError as error:
         raise SystemExit(f"bad --depth-shield-m: {error}") from error
-    return shielded, source + guard.describe(), env_kwargs | guard.env_kwargs()
+    return shielded, source + guard.describe(), env_kwargs
 
 
 def guarded_row_name(name: str, wrapper: str, depth_views: int) -> str:
@@ -710,7 +711,7 @@ def _depth_guard(config):
 
     margin_m, planner = config.depth_shield_m, config.depth_planner
     shadow_m, behind_surfaces = config.depth_shadow_m, config.depth_shadow_behind_surfaces
-    bridge_m, checks = config.depth_bridge_m, config.depth_plan_checks
+    bridge_m, checks = config.depth_bridge_m, _plan_checks(config)
     if checks != 0 and not planner:
         raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
     escapes_first = _escapes_first(config)
@@ -731,8 +732,6 @@ def _depth_guard(config):
     fine = config.depth_fine_size
     if fine != 0 and not 8 <= fine <= MAX_IMAGE_SIZE:
         raise SystemExit(f"--depth-fine-size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine}")
-    if checks < 0:
-        raise SystemExit(f"--depth-plan-checks must be >= 0, got {checks}")
     return DepthGuard(
         margin_m,
         planner,
@@ -744,6 +743,13 @@ def _depth_guard(config):
         config.depth_escapes,
         escapes_first,
     )
+
+
+def _plan_checks(config) -> int:
+    """`config`'s --depth-plan-checks; SystemExit when it is negative."""
+    if config.depth_plan_checks < 0:
+        raise SystemExit(f"--depth-plan-checks must be >= 0, got {config.depth_plan_checks}")
+    return config.depth_plan_checks
 
 
 def _escapes_first(config) -> int:

@@ -568,6 +568,10 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     assert source == guard.describe()
     assert kwargs == env_kwargs | guard.env_kwargs()
     assert finer.env_kwargs() == {"fine_depth_size": 128}
+    # `around`: the wrapper on the views the env options render, and the options it adds.
+    shielded, around_kwargs = guard.around(IKInterpolationPolicy(), env_kwargs)
+    assert isinstance(shielded, DepthShieldPlanner) and shielded.depth_key == "fine_depth"
+    assert around_kwargs == kwargs
 
 
 def test_hybrid_guards_describe_the_committed_hybrid_rows():

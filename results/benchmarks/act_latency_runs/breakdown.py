@@ -76,7 +76,7 @@ class PartTimes:
 def run(views: int, num_tasks: int) -> str:
     policy, _, env_kwargs = load_policy(POLICIES[views])
     guard = ESCAPES[views]
-    wrapper = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
+    wrapper, env_kwargs = guard.around(policy, env_kwargs)
     times = PartTimes()
     times.wrap(wrapper.occupancy, "update", "map")
     if wrapper.shadow is not None:
@@ -84,7 +84,7 @@ def run(views: int, num_tasks: int) -> str:
     times.wrap(wrapper.policy.policy, "act", "policy")  # inside StallBurst
     times.wrap(wrapper, "shield", "shield")
     times.wrap_act(wrapper)
-    env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs, **guard.env_kwargs())
+    env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
     first = VALIDATION_SEEDS.start + OFFSET
     records = evaluate(env, wrapper, [int(s) for s in VALIDATION_SEEDS.seeds(num_tasks, first)])
     env.close()

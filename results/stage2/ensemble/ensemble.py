@@ -443,10 +443,10 @@ def load(name: str):
         if options is not None:
             policy = StallBurst(policy, **options)
         guard = dataclasses.replace(HYBRID[kwargs["num_views"]], planner=planner, **changes)
-        shielded = guard.wrap(policy, kwargs["num_views"], kwargs["image_size"])
+        shielded, kwargs = guard.around(policy, kwargs)
         if mode is not None:
             policy.choose = EscapeChooser(shielded.checker, mode)
-        return shielded, kwargs | guard.env_kwargs()
+        return shielded, kwargs
     if name in HEADED:
         import importlib
         import sys

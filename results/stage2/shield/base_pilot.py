@@ -34,8 +34,8 @@ def main() -> None:
     first = VALIDATION_SEEDS.start + OFFSET
     seeds = [int(s) for s in VALIDATION_SEEDS.seeds(args.num_tasks, first)]
     for name in ("base", SHIPPED[args.views]):
-        policy = guard.wrap(load_policy(name)[0], args.views, env_kwargs["image_size"])
-        env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs, **guard.env_kwargs())
+        policy, guarded_env = guard.around(load_policy(name)[0], env_kwargs)
+        env = ReachEnv(num_obstacles=2, task_family="blocked", **guarded_env)
         records = evaluate(env, policy, seeds)
         env.close()
         successes = sum(r.success for r in records)

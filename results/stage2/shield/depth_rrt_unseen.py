@@ -21,7 +21,7 @@ import torch
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import HYBRID, RENDERED_VIEWS_IMAGE_SIZE, rendered_views_env
+from clamgen.experiments.depth_planner import HYBRID, rendered_views_env
 from clamgen.experiments.evaluate import evaluate
 from clamgen.policy import HoldStill
 
@@ -44,8 +44,7 @@ def main() -> None:
     out = HERE / "depth_rrt_unseen.jsonl"
     with out.open("w") as f:
         for words, guard in SETTINGS.items():
-            policy = guard.wrap(HoldStill(), 1, RENDERED_VIEWS_IMAGE_SIZE)
-            env_kwargs = rendered_views_env(1) | guard.env_kwargs()
+            policy, env_kwargs = guard.around(HoldStill(), rendered_views_env(1))
             env = ReachEnv(num_obstacles=2, task_family="blocked", **env_kwargs)
             records = evaluate(env, policy, seeds)
             env.close()

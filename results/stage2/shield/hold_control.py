@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from clamgen.cli import EvalConfig, depth_views_env, guarded_row_name
-from clamgen.experiments.depth_planner import ESCAPES_PLANNER, HYBRID, RENDERED_VIEWS_IMAGE_SIZE
+from clamgen.experiments.depth_planner import ESCAPES_PLANNER, HYBRID
 from clamgen.experiments.machine import describe
 from clamgen.experiments.policies import views_suffix
 from clamgen.experiments.tables import table2_row, write_table2
@@ -37,8 +37,7 @@ NUM_TASKS = EvalConfig.num_tasks
 
 def run(views: int, wrapper: str) -> Path:
     guard = WRAPPERS[wrapper][views]
-    policy = guard.wrap(HoldStill(), views, RENDERED_VIEWS_IMAGE_SIZE)
-    env_kwargs = depth_views_env({}, views) | guard.env_kwargs()
+    policy, env_kwargs = guard.around(HoldStill(), depth_views_env({}, views))
     name = guarded_row_name("no policy (the arm holds still)", guard.describe(), views)
     rows = [
         table2_row(name, policy, NUM_TASKS, env_kwargs, family, FIRST_SEED)

@@ -39,9 +39,7 @@ ROWS = ("residual-{}", "residual-{} + hybrid", "depth-rrt-{}")
 def policy_of(row: str):
     policy, _, env_kwargs = load_policy(row.split(" + ")[0])
     if row.endswith("hybrid"):
-        guard = HYBRID[env_kwargs["num_views"]]
-        policy = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
-        env_kwargs = env_kwargs | guard.env_kwargs()
+        policy, env_kwargs = HYBRID[env_kwargs["num_views"]].around(policy, env_kwargs)
     return policy, env_kwargs
 
 

@@ -112,8 +112,8 @@ def done() -> list[dict]:
 def run(setting: str, views: int, family: str, seeds: list[int]) -> dict:
     guard = SETTINGS[setting](views)
     policy, _, env_kwargs = load_policy(POLICIES[views])
-    hybrid = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
-    env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs, **guard.env_kwargs())
+    hybrid, env_kwargs = guard.around(policy, env_kwargs)
+    env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
     records = evaluate(env, hybrid, seeds)
     env.close()
     acts = np.concatenate([r.act_times_s for r in records]) * 1e3

@@ -256,6 +256,13 @@ class DepthGuard:
             fine_depth_size=self.fine_depth_size,
         )
 
+    def around(self, policy, env_kwargs: dict) -> tuple[DepthShield, dict]:
+        """`policy` acting through this guard on the views `env_kwargs` renders (its
+        `num_views` and `image_size`), and those env options with what the guard adds
+        (`env_kwargs`); a ValueError for bad settings."""
+        views, size = env_kwargs["num_views"], env_kwargs["image_size"]
+        return self.wrap(policy, views, size), env_kwargs | self.env_kwargs()
+
     def flags(self) -> tuple[str, ...]:
         """The `clamgen eval` options that give this guard (a ValueError with `plan_first`,
         which no option gives: the `depth-rrt-*` baselines plan first)."""
@@ -348,5 +355,4 @@ def depth_rrt(num_views: int, plan_checks: int = 0) -> tuple[DepthShieldPlanner,
     if num_views not in (1, 2, 3, 4):
         raise ValueError(f"depth_rrt needs 1 to 4 views, got {num_views}")
     guard = replace(HYBRID[min(num_views, max(HYBRID))], plan_first=True, plan_checks=plan_checks)
-    policy = guard.wrap(HoldStill(), num_views, RENDERED_VIEWS_IMAGE_SIZE)
-    return policy, rendered_views_env(num_views) | guard.env_kwargs()
+    return guard.around(HoldStill(), rendered_views_env(num_views))
