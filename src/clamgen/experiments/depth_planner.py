@@ -12,6 +12,15 @@ most `MAX_PLANS` plans an episode). Without a path the policy keeps acting. The 
 happens inside `act`, on the step that found the policy stuck (up to `PLAN_TIME_S`);
 `episode_plan_time_s` sums it over the episode.
 
+A moving target (`track_m` > 0; the `depth-rrt-*` baselines): the planner estimates the
+target's velocity from the last two goals it observed and plans to meet it, to where it will be
+when the path ends (`TargetTrack`); it plans again, beyond `MAX_PLANS`, when the target leaves
+the course it was planned on by `track_m` (a bounce off the goal box's face), when the path
+ends without the target there, or while it has no path, every `TRACK_RETRY_STEPS` steps (at
+most `MAX_TRACK_PLANS` such plans an episode). A static target never moves off its course, so
+these plans never happen for it. Planning takes no simulated time: the arm waits while it
+plans, an advantage over a real arm whose target keeps moving meanwhile.
+
 When the policy inside escapes from stalls itself (`stall.StallBurst`: a few steps of a random
 command; `DepthGuard(planner=True, escapes=True)`), the escapes are the way out where the
 planner finds no path (or has used its plans). With `escapes_before_plan` K > 0 they also go
@@ -52,6 +61,13 @@ MAX_PLANS = 3
 PLAN_TIME_S = 1.0
 """RRT-Connect's budget per plan, shared by the goal candidates."""
 MAX_GOAL_CANDIDATES = 4
+TRACK_M = 0.02
+"""With a moving target (`track_m`, the `depth-rrt-*` baselines): plan again when the target is
+this far from where the current plan expected it (the success radius)."""
+MAX_TRACK_PLANS = 30
+"""With a moving target: the plans an episode beyond `MAX_PLANS`, to meet it."""
+TRACK_RETRY_STEPS = 5
+"""With a moving target and no path: steps between plans."""
 SIMPLIFY_CHECKS = 1_000
 """With a budget in checks (`plan_checks`): the simplification's budget, also in checks (about
 0.1 s of checks on the depth map on one core here, half the time-budgeted simplification's
@@ -60,6 +76,55 @@ RECHECK_RESOLUTION_RAD = COLLISION_CHECK_RESOLUTION_RAD
 """With a budget in checks: the found path is re-checked at the env's own collision-check
 resolution (the shield checks every step of it again as the arm follows it), instead of the
 RRT baseline's finer 0.002 rad."""
+
+
+class TargetTrack:
+    """The target as a planner sees it move: its velocity (metres a step) from the last two
+    goals observed, and where the last plan expected it to be by now (straight on at the
+    velocity it had then)."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.velocity = np.zeros(3)
+        self._last: np.ndarray | None = None
+        self._planned: tuple[np.ndarray, np.ndarray] | None = None  # goal, velocity at the plan
+        self.steps_since_plan = 0
+
+    def observe(self, goal: np.ndarray) -> None:
+        """One step's goal."""
+        if self._last is not None:
+            self.velocity = goal - self._last
+        self._last = goal.copy()
+        self.steps_since_plan += 1
+
+    @property
+    def moving(self) -> bool:
+        return bool(self.velocity.any())
+
+    def planned(self, goal: np.ndarray) -> None:
+        """A plan was made (or tried) now, for the target at `goal`."""
+        self._planned = goal.copy(), self.velocity.copy()
+        self.steps_since_plan = 0
+
+    def off_course(self, goal: np.ndarray) -> float:
+        """How far the target is from where the last plan expected it (0 before any plan)."""
+        if self._planned is None:
+            return 0.0
+        start, velocity = self._planned
+        return float(np.linalg.norm(goal - (start + velocity * self.steps_since_plan)))
+
+    def ahead(self, goal: np.ndarray, steps: int) -> np.ndarray:
+        """Where the target at `goal` will be in `steps` steps, straight on."""
+        return goal + self.velocity * steps
+
+
+def follow_steps(joints: np.ndarray, waypoints: np.ndarray) -> int:
+    """Steps the arm takes from `joints` along `waypoints` at the env's largest joint step."""
+    path = np.vstack([joints, waypoints])
+    moves = np.max(np.abs(np.diff(path, axis=0)), axis=1) / MAX_JOINT_DELTA_RAD
+    return int(np.sum(np.ceil(moves - 1e-9)))
 
 
 class DepthShieldPlanner(DepthShield):
@@ -75,7 +140,9 @@ class DepthShieldPlanner(DepthShield):
     begun in an episode before a plan (each escape also restarts the stall window).
     `plan_first`: plan at the first step of each episode too, on what the first views show,
     instead of only once the policy stalls (with a policy that holds still, `HoldStill`: RRT
-    on the depth map alone, the `depth-rrt-*` baselines).
+    on the depth map alone, the `depth-rrt-*` baselines). `track_m` > 0: a moving target is
+    met where it will be, and planned for again when it leaves its course by `track_m`
+    (`TargetTrack`, the module's docstring); 0, plans go to where the target is.
     `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`, `shadow_m`,
     `shadow_behind_surfaces`, `bridge_m`, `fine_depth_size`), passed on as they are.
     """
@@ -93,10 +160,15 @@ class DepthShieldPlanner(DepthShield):
         plan_checks: int = 0,
         escapes_before_plan: int = ESCAPES_BEFORE_PLAN,
         plan_first: bool = False,
+        track_m: float = 0.0,
         **shield_options: Any,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
         self.plan_first = plan_first
+        if not 0 <= track_m < float("inf"):
+            raise ValueError(f"track_m must be a number >= 0, got {track_m}")
+        self.track_m = track_m
+        self.track = TargetTrack()
         if escapes_before_plan < 0:
             raise ValueError(f"escapes_before_plan must be >= 0, got {escapes_before_plan}")
         self.escapes_before_plan = escapes_before_plan
@@ -124,6 +196,8 @@ class DepthShieldPlanner(DepthShield):
         self.waypoints: np.ndarray | None = None
         self._next = 0
         self._plans = 0
+        self._track_plans = 0
+        self.track.reset()
         self._escapes = 0  # escapes the policy inside has begun this episode
         self._first_step = True
         self.episode_plan_time_s = 0.0
@@ -140,25 +214,52 @@ class DepthShieldPlanner(DepthShield):
         if escapes is not None and escapes != self._escapes:
             self._escapes = escapes  # an escape began last step: its own window
             self.window.restart()
+        self.track.observe(goal)
         first, self._first_step = self._first_step, False
         stalled = self.window.stalled(distance)
-        if (
+        due = (
             (stalled or (first and self.plan_first))
             and self._plans < MAX_PLANS
             and (escapes is None or escapes >= self.escapes_before_plan)
-        ):
-            self._plans += 1
+        )
+        retrack = not due and self._retrack(joints, goal, distance)
+        if due or retrack:
+            self._plans += int(due)
+            self._track_plans += int(retrack)
             self.num_plans += 1
             tic = time.perf_counter()
-            self.waypoints, self._next = self.plan(joints, goal), 0
+            self.waypoints, self._next = self._plan_to_meet(joints, goal), 0
             self.episode_plan_time_s += time.perf_counter() - tic
             self.num_paths += int(self.waypoints is not None)
             self.window.restart()
+            self.track.planned(goal)
         if self.waypoints is not None:
             action = self._follow(joints)
         else:
             action = np.asarray(self.policy.act(obs), np.float64)
         return self.shield(joints, action)
+
+    def _retrack(self, joints: np.ndarray, goal: np.ndarray, distance: float) -> bool:
+        """Whether a moving target calls for a plan beyond `MAX_PLANS`: off its course, at the
+        end of a path that missed it, or while there is no path (every `TRACK_RETRY_STEPS`)."""
+        if not (self.track_m and self.track.moving and self._track_plans < MAX_TRACK_PLANS):
+            return False
+        if self.track.off_course(goal) >= self.track_m:
+            return True
+        if self.waypoints is None:
+            return self.track.steps_since_plan >= TRACK_RETRY_STEPS
+        end = self.waypoints[-1]
+        at_end = np.max(np.abs(end - joints)) <= WAYPOINT_REACHED_TOL_RAD
+        return bool(at_end and distance > SUCCESS_DISTANCE_M)
+
+    def _plan_to_meet(self, joints: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """A path to the target (`plan`); with `track_m` and the target moving, to where it
+        will be when the path to where it is now would end (kept when there is none)."""
+        path = self.plan(joints, goal)
+        if not (self.track_m and self.track.moving) or path is None:
+            return path
+        ahead = self.plan(joints, self.track.ahead(goal, follow_steps(joints, path)))
+        return path if ahead is None else ahead
 
     def _follow(self, joints: np.ndarray) -> np.ndarray:
         last = len(self.waypoints) - 1
@@ -214,8 +315,9 @@ class DepthGuard:
     around the policy: every step a policy step or a random command, plus the shield's
     checks), instead of by a plan or, with `planner` too, before one: the planner plans only
     once the policy has begun `escapes_before_plan` escapes in the episode, with `plan_first`
-    planning at the first step of each episode too. The fields but `plan_first` are
-    `clamgen eval|render`'s `--depth-*` options (`plan_first`: the `depth-rrt-*` baselines,
+    planning at the first step of each episode too, with `track_m` > 0 planning to meet a
+    moving target (`DepthShieldPlanner`). The fields but `plan_first` and `track_m` are
+    `clamgen eval|render`'s `--depth-*` options (those two: the `depth-rrt-*` baselines,
     `depth_rrt`)."""
 
     margin_m: float = MARGIN_M
@@ -228,6 +330,7 @@ class DepthGuard:
     escapes: bool = False
     escapes_before_plan: int = ESCAPES_BEFORE_PLAN
     plan_first: bool = False
+    track_m: float = 0.0
 
     def env_kwargs(self) -> dict[str, int]:
         """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
@@ -243,6 +346,7 @@ class DepthGuard:
                 "plan_checks": self.plan_checks,
                 "escapes_before_plan": self.escapes_before_plan,
                 "plan_first": self.plan_first,
+                "track_m": self.track_m,
             }
         return wrapper(
             policy,
@@ -264,10 +368,13 @@ class DepthGuard:
         return self.wrap(policy, views, size), env_kwargs | self.env_kwargs()
 
     def flags(self) -> tuple[str, ...]:
-        """The `clamgen eval` options that give this guard (a ValueError with `plan_first`,
-        which no option gives: the `depth-rrt-*` baselines plan first)."""
-        if self.plan_first:
-            raise ValueError("no clamgen eval option plans first: use a depth-rrt-* policy")
+        """The `clamgen eval` options that give this guard (a ValueError with `plan_first` or
+        `track_m`, which no option gives: the `depth-rrt-*` baselines have them)."""
+        if self.plan_first or self.track_m:
+            raise ValueError(
+                "no clamgen eval option plans first or meets a moving target: "
+                "use a depth-rrt-* policy"
+            )
         flags = ["--depth-shield-m", str(self.margin_m)]
         flags += ["--depth-planner"] if self.planner else []
         if self.shadow_m is not None:
@@ -291,6 +398,7 @@ class DepthGuard:
         text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
         checks = f" ({self.plan_checks} checks a plan)" if self.plan_checks else ""
         when = "from the first step and when stuck" if self.plan_first else "when stuck"
+        when += f", meeting a moving target (replanning {self.track_m} m off)" * bool(self.track_m)
         text += ")" + (f" + planner {when}{checks}" if self.planner else "")
         if self.escapes and self.planner:
             first = self.escapes_before_plan
@@ -341,18 +449,26 @@ def rendered_views_env(num_views: int) -> dict:
     return {"num_views": num_views, "image_size": RENDERED_VIEWS_IMAGE_SIZE, "obs_mode": "both"}
 
 
-def depth_rrt(num_views: int, plan_checks: int = 0) -> tuple[DepthShieldPlanner, dict]:
+def depth_rrt(
+    num_views: int, plan_checks: int = 0, track_m: float = 0.0
+) -> tuple[DepthShieldPlanner, dict]:
     """RRT on the depth map of `num_views` views, with no learned policy (a baseline beyond the
     paper, the classical counterpart of a vision policy on the same sensors): the hybrid's
     shield and planner of that number of views (`HYBRID`) around a policy that holds still,
     planning at the first step of each episode on what the first views show, following the
     path through the shield and planning again when it stalls (at most `MAX_PLANS` plans of
     `PLAN_TIME_S`, or with `plan_checks` > 0 that many validity checks, the same plans on any
-    machine); while it has no path the arm holds still. Returns the policy and the env
-    options it observes with (the views and the guard's depth cameras)."""
+    machine); while it has no path the arm holds still. With `track_m` > 0 it plans to meet a
+    moving target (`DepthShieldPlanner`). Returns the policy and the env options it observes
+    with (the views and the guard's depth cameras)."""
     from clamgen.policy import HoldStill
 
     if num_views not in (1, 2, 3, 4):
         raise ValueError(f"depth_rrt needs 1 to 4 views, got {num_views}")
-    guard = replace(HYBRID[min(num_views, max(HYBRID))], plan_first=True, plan_checks=plan_checks)
+    guard = replace(
+        HYBRID[min(num_views, max(HYBRID))],
+        plan_first=True,
+        plan_checks=plan_checks,
+        track_m=track_m,
+    )
     return guard.around(HoldStill(), rendered_views_env(num_views))

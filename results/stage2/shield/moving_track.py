@@ -1,0 +1,87 @@
+"""Validation (session 44): how far off its course a moving target may go before RRT on the
+depth map plans again to meet it (`DepthShieldPlanner(track_m=...)`; protocol in README.md,
+"Session 44: RRT on the depth map meeting a moving target").
+
+    python results/stage2/shield/moving_track.py [--views 2] [--num-tasks 40]
+
+`depth_planner.depth_rrt(views, track_m=T)` for each T of `TRACKS` (0: session 43's baseline,
+which plans to where the target is), on `--num-tasks` validation tasks (offset 460000 into the
+validation range) of each obstacle family, with the target moving at 0.1 and 0.2 m/s. One line
+per (views, track, family, speed) in `moving_track.jsonl`: successes, collisions, plans and
+the mean steps of the successes; then the rule's choice.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import VALIDATION_SEEDS
+from clamgen.experiments.depth_planner import depth_rrt
+from clamgen.experiments.evaluate import evaluate
+
+HERE = Path(__file__).resolve().parent
+OFFSET = 460_000
+SPEEDS = (0.1, 0.2)
+TRACKS = (0.0, 0.01, 0.02, 0.04)
+
+
+def measure(views: int, track: float, family: str, speed: float, seeds) -> dict:
+    policy, env_kwargs = depth_rrt(views, track_m=track)
+    env = ReachEnv(num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs)
+    tic = time.perf_counter()
+    records = evaluate(env, policy, seeds)
+    env.close()
+    solved = [r.steps for r in records if r.success]
+    return {
+        "views": views,
+        "track_m": track,
+        "family": family,
+        "speed": speed,
+        "num_tasks": len(records),
+        "successes": len(solved),
+        "collisions": sum(r.collided for r in records),
+        "plans": policy.num_plans,
+        "mean_steps_of_successes": float(np.mean(solved)) if solved else None,
+        "wall_s": round(time.perf_counter() - tic, 1),
+    }
+
+
+def choose(lines: list[dict]) -> float:
+    """The rule: most blocked successes over both speeds, then most standard, then larger."""
+
+    def total(track: float, family: str) -> int:
+        return sum(x["successes"] for x in lines if x["track_m"] == track and x["family"] == family)
+
+    tracks = [t for t in TRACKS if t > 0]
+    return max(tracks, key=lambda t: (total(t, "blocked"), total(t, "obstacles"), t))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--num-tasks", type=int, default=40)
+    parser.add_argument("--views", type=int, default=2, choices=(3, 2, 1))
+    args = parser.parse_args()
+    seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + OFFSET)
+    out = HERE / "moving_track.jsonl"
+    lines = []
+    with out.open("w") as f:
+        for track in TRACKS:
+            for family in ("blocked", "obstacles"):
+                for speed in SPEEDS:
+                    line = measure(args.views, track, family, speed, seeds)
+                    lines.append(line)
+                    print(json.dumps(line), flush=True)
+                    f.write(json.dumps(line) + "\n")
+                    f.flush()
+    print("wrote", out)
+    print("chosen track_m:", choose(lines))
+
+
+if __name__ == "__main__":
+    main()
