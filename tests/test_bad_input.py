@@ -441,7 +441,7 @@ def test_render_refuses_a_bad_outcome_search(workdir):
     assert "max_tries (1) must be >= num_episodes (2)" in message
 
 
-def test_eval_rrt_on_table1_says_it_plans_for_static_obstacle_tasks(workdir, capsys):
+def test_eval_rrt_on_table1_says_how_it_plans(workdir, capsys):
     pytest.importorskip("ompl")
     out = workdir / "rrt"
     cli.main(["eval", "--policy", "rrt", "--num-tasks", "1", "--speeds", "0.1", "--out", str(out)])
@@ -452,8 +452,8 @@ def test_eval_rrt_on_table1_says_it_plans_for_static_obstacle_tasks(workdir, cap
     out = workdir / "depth_rrt"
     args = ["--policy", "depth-rrt-1view", "--num-tasks", "1", "--speeds", "0.1"]
     cli.main(["eval", *args, "--out", str(out)])
-    assert "note: RRT on the depth map plans to the target's position" in capsys.readouterr().out
-    assert "a moving target leaves its plans behind" in out.with_suffix(".md").read_text()
+    assert "note: RRT on the depth map plans at the first step to meet" in capsys.readouterr().out
+    assert "planning takes no simulated time" in out.with_suffix(".md").read_text()
 
 
 # ---------------------------------------------------------------- --debug, exit status

@@ -950,6 +950,19 @@ def _render_config(argv: list[str]):
     )
 
 
+def _table2_row_name(config: EvalConfig, label: str) -> str:
+    """`--name`, else the policy's Table 2 row name (`TABLE2_ROW_NAMES`, else `label`) with
+    what the options change: a depth-rrt baseline's budget in checks, a moving target."""
+    if config.name:
+        return config.name
+    name = TABLE2_ROW_NAMES.get(str(config.policy), label)
+    if str(config.policy) in DEPTH_RRT_BASELINES and config.depth_plan_checks:
+        name += f", {config.depth_plan_checks} checks a plan"
+    if config.target_speed:
+        name += f", target moving at {config.target_speed:g} m/s"
+    return name
+
+
 def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_kwargs: dict):
     """One Table 2 row name, one `ObstacleRow` per task family (written together)."""
     from clamgen.experiments.tables import (
@@ -960,18 +973,9 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
         write_table2,
     )
 
-    speed = config.target_speed
-    if speed:
-        env_kwargs = env_kwargs | {"target_speed": speed}
-    name = config.name or TABLE2_ROW_NAMES.get(str(config.policy), label)
-    if (
-        config.name is None
-        and str(config.policy) in DEPTH_RRT_BASELINES
-        and config.depth_plan_checks
-    ):
-        name += f", {config.depth_plan_checks} checks a plan"
-    if config.name is None and speed:
-        name += f", target moving at {speed:g} m/s"
+    if config.target_speed:
+        env_kwargs = env_kwargs | {"target_speed": config.target_speed}
+    name = _table2_row_name(config, label)
     rows = []
     for family in config.families:
         print(f"evaluating {source} on {config.num_tasks} held-out {FAMILY_TITLES[family]} ...")

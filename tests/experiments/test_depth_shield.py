@@ -263,6 +263,51 @@ def test_rrt_on_the_depth_map_plans_at_the_first_step_with_no_policy(blocked_env
     assert both and all(w.steps - p.steps == STUCK_STEPS for w, p in both)
 
 
+def test_target_track_expects_straight_motion_and_counts_path_steps():
+    from clamgen.envs.reach_env import MAX_JOINT_DELTA_RAD
+    from clamgen.experiments.depth_planner import TargetTrack, follow_steps
+
+    track = TargetTrack()
+    goal = np.array([0.5, 0.0, 0.3])
+    track.observe(goal)
+    assert not track.moving and track.off_course(goal) == 0.0  # no plan yet
+    track.planned(goal)
+    step = np.array([0.01, 0.0, 0.0])
+    for k in range(1, 4):
+        track.observe(goal + k * step)
+    assert track.moving and np.allclose(track.velocity, step)
+    assert track.off_course(goal + 3 * step) == pytest.approx(0.03)  # planned as if still
+    track.planned(goal + 3 * step)
+    track.observe(goal + 4 * step)
+    assert track.off_course(goal + 4 * step) == pytest.approx(0.0)  # on course now
+    assert track.off_course(goal + 2 * step) == pytest.approx(0.02)  # bounced back
+    assert np.allclose(track.ahead(goal, 5), goal + 5 * step)
+    joints = np.zeros(6)
+    waypoints = np.array([[2.5, 0, 0, 0, 0, 0], [2.5, 1.0, 0, 0, 0, 0]]) * MAX_JOINT_DELTA_RAD
+    assert follow_steps(joints, waypoints) == 3 + 1  # ceil(2.5) steps, then one
+
+
+def test_rrt_on_the_depth_map_meets_a_moving_target_and_plans_a_static_one_as_before():
+    """`track_m` (the `depth-rrt-*` baselines): with the target moving at 0.2 m/s the planner
+    that meets it arrives where the one that plans to where the target was does not; with a
+    static target the two plan the same (a budget in checks: the same plans twice)."""
+    pytest.importorskip("ompl.base")
+    from clamgen.experiments.depth_planner import TRACK_M, depth_rrt
+
+    seeds = TEST_SEEDS.seeds(3)
+    outcomes = {}
+    for speed in (0.0, 0.2):
+        for track in (0.0, TRACK_M):
+            policy, env_kwargs = depth_rrt(2, plan_checks=10_000, track_m=track)
+            env = ReachEnv(num_obstacles=2, task_family="blocked", target_speed=speed, **env_kwargs)
+            records = evaluate(env, policy, seeds)
+            env.close()
+            outcomes[speed, track] = [(r.success, r.steps, r.tip_path_m) for r in records]
+    assert outcomes[0.0, 0.0] == outcomes[0.0, TRACK_M]
+    met = sum(success for success, _, _ in outcomes[0.2, TRACK_M])
+    assert met >= 2 and met > sum(success for success, _, _ in outcomes[0.2, 0.0])
+
+
 def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     """`--policy depth-rrt-<V>views`: the hybrid's shield and planner of V views around a held
     arm, planning first, on V rendered views; no other depth option goes with it."""
@@ -270,6 +315,7 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     from clamgen.cli import main
     from clamgen.experiments.depth_planner import (
         RENDERED_VIEWS_IMAGE_SIZE,
+        TRACK_M,
         DepthShieldPlanner,
         depth_rrt,
     )
@@ -278,8 +324,9 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     for name, views in DEPTH_RRT_BASELINES.items():
         assert name == f"depth-rrt-{views_suffix(views)}"
         policy, source, env_kwargs = load_policy(name)
-        guard = replace(HYBRID[views], plan_first=True)
+        guard = replace(HYBRID[views], plan_first=True, track_m=TRACK_M)
         assert isinstance(policy, DepthShieldPlanner) and policy.plan_first
+        assert policy.track_m == TRACK_M
         assert isinstance(policy.policy, HoldStill) and source.startswith(name)
         assert env_kwargs == {
             "num_views": views,
@@ -287,7 +334,10 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
             "obs_mode": "both",
             **guard.env_kwargs(),
         }
-        assert guard.describe().endswith("planner from the first step and when stuck")
+        assert guard.describe().endswith(
+            "planner from the first step and when stuck, meeting a moving target "
+            f"(replanning {TRACK_M} m off)"
+        )
         with pytest.raises(ValueError, match="plans first"):
             guard.flags()
     with pytest.raises(ValueError, match="1 to 4 views"):

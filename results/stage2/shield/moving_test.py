@@ -1,12 +1,18 @@
 """A moving target on the test tasks: the shipped residuals alone and in their hybrids against
-RRT on the depth map (session 43; protocol in README.md, "A moving target on the test tasks").
+RRT on the depth map (sessions 43-44; protocols in README.md, "A moving target on the test
+tasks", "Session 44: the moving-target rows over training seeds" and "Session 44: RRT on the
+depth map meeting a moving target").
 
     python results/stage2/shield/moving_test.py
 
-Reads `moving/<row>-<views>-<speed>.json` (`moving/run.sh`) and writes `moving_test.md`
-beside this file: per number of views, target speed and family, each row's success and
-collision rate; the tasks only the row solves / only the depth-map planner (exact two-sided
-sign test); and on the tasks both solve, the median steps of each.
+Reads `moving/<row>-<views>-<speed>.json` (`moving/run.sh`: the shipped residuals, training
+seed 5, and the planners) and `moving/seeds/<row>-<views>-seed<S>-<speed>.json`
+(`moving/seeds.sh`: the other committed training seeds), and writes `moving_test.md` beside
+this file: the two depth-map planners (to where the target was, session 43; meeting it,
+session 44); the residuals alone and in their hybrids as means over training seeds, with
+rliable's 95% stratified-bootstrap interval; and, for the shipped seed, task by task against
+the planner that meets the target (only the row solves / only the planner, exact two-sided
+sign test; median steps of each on the tasks both solve).
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from base_control import rows, write_markdown  # (this directory: the script's own)
 
+from clamgen.experiments.aggregate import aggregate_rows
 from clamgen.experiments.policies import views_suffix
 from clamgen.experiments.tables import paired_count
 
@@ -23,11 +30,93 @@ HERE = Path(__file__).resolve().parent
 RUNS = HERE / "moving"
 SPEEDS = ("0p1", "0p2")
 """The target speeds run, as the files spell them (0.1 and 0.2 m/s)."""
+FAMILIES = ("obstacles", "blocked")
 PAIRS = (("residual", "the residual alone"), ("hybrid", "the residual in its hybrid"))
+PLANNERS = (
+    ("depth-rrt", "to where the target was (session 43)"),
+    ("depth-rrt-track", "meeting the target (session 44)"),
+)
+SHIPPED_SEED = 5
+SEEDS = {3: (7, 8, 9), 2: (11, 12), 1: (11, 12)}
+"""The other training seeds with committed policies (`moving/seeds.sh`)."""
 
 
-def line(views: int, speed: str, family: str, words: str, row: dict, planner: dict) -> str:
-    """One table line: `row` against the depth-map planner's row on the same tasks."""
+def speed_of(speed: str) -> str:
+    return speed.replace("p", ".")
+
+
+def seed_files(stem: str, views: int, speed: str) -> list[tuple[int, Path]]:
+    """(training seed, file) of a row's evaluations that exist, the shipped seed first."""
+    suffix = views_suffix(views)
+    files = [(SHIPPED_SEED, RUNS / f"{stem}-{suffix}-{speed}.json")]
+    files += [(s, RUNS / "seeds" / f"{stem}-{suffix}-seed{s}-{speed}.json") for s in SEEDS[views]]
+    return [(seed, path) for seed, path in files if path.exists()]
+
+
+def rates(row: dict) -> str:
+    return f"{row['success_rate']:.3f} / {row['collision_rate']:.3f}"
+
+
+def over_seeds(values: list[float]) -> str:
+    """Mean over seeds with its 95% interval (none from one seed)."""
+    if len(values) == 1:
+        return f"{values[0]:.3f}"
+    mean = aggregate_rows({"row": np.asarray(values, dtype=float)[:, None]})["row"].mean
+    return f"{mean.value:.3f} ({mean.low:.3f}-{mean.high:.3f})"
+
+
+def planner_lines() -> list[str]:
+    lines = [
+        "## The two planners on the depth map",
+        "",
+        "| views | speed | family | " + " | ".join(words for _, words in PLANNERS) + " |",
+        "|---|---|---|" + "---|" * len(PLANNERS),
+    ]
+    for views in (3, 2, 1):
+        for speed in SPEEDS:
+            found = [RUNS / f"{stem}-{views_suffix(views)}-{speed}.json" for stem, _ in PLANNERS]
+            if not all(path.exists() for path in found):
+                continue
+            loaded = [rows(path) for path in found]
+            for family in FAMILIES:
+                cells = " | ".join(rates(planner[family]) for planner in loaded)
+                lines.append(f"| {views} | {speed_of(speed)} | {family} | {cells} |")
+    return lines
+
+
+def seed_table() -> list[str]:
+    lines = [
+        "## The residuals over training seeds",
+        "",
+        "Success and collision rate, mean over training seeds (rliable's 95% stratified-",
+        "bootstrap interval); per seed in the last column (success / collisions), the shipped",
+        "seed 5 first.",
+        "",
+        "| views | speed | family | row | seeds | success | collisions | per seed |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for views in (3, 2, 1):
+        for speed in SPEEDS:
+            for family in FAMILIES:
+                for stem, words in PAIRS:
+                    runs = seed_files(stem, views, speed)
+                    if not runs:
+                        continue
+                    scored = [rows(path)[family] for _, path in runs]
+                    success = [row["success_rate"] for row in scored]
+                    collisions = [row["collision_rate"] for row in scored]
+                    each = ", ".join(
+                        f"{seed}: {rates(row)}" for (seed, _), row in zip(runs, scored, strict=True)
+                    )
+                    lines.append(
+                        f"| {views} | {speed_of(speed)} | {family} | {words} | {len(runs)} "
+                        f"| {over_seeds(success)} | {over_seeds(collisions)} | {each} |"
+                    )
+    return lines
+
+
+def paired_line(views: int, speed: str, family: str, words: str, row: dict, planner: dict):
+    """One table line: `row` against the planner's row on the same tasks."""
     solved, planned = np.asarray(row["task_success"]), np.asarray(planner["task_success"])
     pair = paired_count(solved, planned)
     both = solved & planned
@@ -35,14 +124,35 @@ def line(views: int, speed: str, family: str, words: str, row: dict, planner: di
     def median_steps(of: dict) -> float:
         return float(np.median(np.asarray(of["task_steps"])[both])) if both.any() else np.nan
 
-    steps, planner_steps = median_steps(row), median_steps(planner)
     return (
-        f"| {views} | {speed.replace('p', '.')} | {family} | {words} "
-        f"| {row['success_rate']:.3f} / {row['collision_rate']:.3f} "
-        f"| {planner['success_rate']:.3f} / {planner['collision_rate']:.3f} "
+        f"| {views} | {speed_of(speed)} | {family} | {words} | {rates(row)} | {rates(planner)} "
         f"| {pair.first_only} / {pair.second_only} ({pair.p_value:.2g}) "
-        f"| {steps:.0f} / {planner_steps:.0f} |"
+        f"| {median_steps(row):.0f} / {median_steps(planner):.0f} |"
     )
+
+
+def paired_table(planner_stem: str, planner_words: str) -> list[str]:
+    lines = [
+        f"## The shipped residuals task by task against the planner {planner_words}",
+        "",
+        "| views | speed | family | row | row | planner "
+        "| only row / only planner (P) | median steps, row / planner |",
+        "|---|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for views in (3, 2, 1):
+        for speed in SPEEDS:
+            planner_path = RUNS / f"{planner_stem}-{views_suffix(views)}-{speed}.json"
+            if not planner_path.exists():
+                print(f"missing {planner_path.name}: not run yet")
+                continue
+            planner = rows(planner_path)
+            for family in FAMILIES:
+                for stem, words in PAIRS:
+                    path = RUNS / f"{stem}-{views_suffix(views)}-{speed}.json"
+                    if path.exists():
+                        row = rows(path)[family]
+                        lines.append(paired_line(views, speed, family, words, row, planner[family]))
+    return lines
 
 
 def main() -> None:
@@ -50,29 +160,17 @@ def main() -> None:
         "# A moving target on the test tasks: the residuals against RRT on the depth map",
         "",
         "Written by `python results/stage2/shield/moving_test.py` from `moving/*.json`",
-        "(`moving/run.sh`); Table 2 test tasks, 200 per family, the target moving at the",
-        "speed given (m/s). Success / collision rate of the row and of the depth-map planner",
-        "of the same views; the tasks only the row solves / only the planner (exact two-sided",
-        "sign test); median steps of each on the tasks both solve.",
+        "(`moving/run.sh`, `moving/seeds.sh`); Table 2 test tasks, 200 per family, the target",
+        "moving at the speed given (m/s). Success / collision rate unless said otherwise.",
         "",
-        "| views | speed | family | row | row | RRT on the depth map "
-        "| only row / only planner (P) | median steps, row / planner |",
-        "|---|---|---|---|---|---|---|---|",
-    ]  # fmt: skip
-    for views in (3, 2, 1):
-        for speed in SPEEDS:
-            planner_path = RUNS / f"depth-rrt-{views_suffix(views)}-{speed}.json"
-            if not planner_path.exists():
-                print(f"missing {planner_path.name}: not run yet")
-                continue
-            planner = rows(planner_path)
-            for family in ("obstacles", "blocked"):
-                for stem, words in PAIRS:
-                    path = RUNS / f"{stem}-{views_suffix(views)}-{speed}.json"
-                    if path.exists():
-                        row = rows(path)[family]
-                        lines.append(line(views, speed, family, words, row, planner[family]))
-    write_markdown(lines, HERE / "moving_test.md")
+        *planner_lines(),
+        "",
+        *seed_table(),
+        "",
+    ]
+    for stem, words in reversed(PLANNERS):
+        lines += [*paired_table(stem, words), ""]
+    write_markdown(lines[:-1], HERE / "moving_test.md")
 
 
 if __name__ == "__main__":

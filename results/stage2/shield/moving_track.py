@@ -3,12 +3,16 @@ depth map plans again to meet it (`DepthShieldPlanner(track_m=...)`; protocol in
 "Session 44: RRT on the depth map meeting a moving target").
 
     python results/stage2/shield/moving_track.py [--views 2] [--num-tasks 40]
+    python results/stage2/shield/moving_track.py --hybrid 0.02
 
 `depth_planner.depth_rrt(views, track_m=T)` for each T of `TRACKS` (0: session 43's baseline,
 which plans to where the target is), on `--num-tasks` validation tasks (offset 460000 into the
 validation range) of each obstacle family, with the target moving at 0.1 and 0.2 m/s. One line
 per (views, track, family, speed) in `moving_track.jsonl`: successes, collisions, plans and
-the mean steps of the successes; then the rule's choice.
+the mean steps of the successes; then the rule's choice. With `--hybrid T`: the shipped
+residual of `--views` in its hybrid (`depth_planner.HYBRID`) as committed (track 0) and with
+its planner meeting the target (`track_m` T), lines marked `"hybrid": true` (added to the
+file's other lines).
 """
 
 from __future__ import annotations
@@ -16,14 +20,17 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import depth_rrt
+from clamgen.experiments.depth_planner import HYBRID, depth_rrt
 from clamgen.experiments.evaluate import evaluate
+from clamgen.experiments.policies import load_policy, views_suffix
 
 HERE = Path(__file__).resolve().parent
 OFFSET = 460_000
@@ -31,14 +38,19 @@ SPEEDS = (0.1, 0.2)
 TRACKS = (0.0, 0.01, 0.02, 0.04)
 
 
-def measure(views: int, track: float, family: str, speed: float, seeds) -> dict:
-    policy, env_kwargs = depth_rrt(views, track_m=track)
+def measure(views: int, track: float, family: str, speed: float, seeds, hybrid: bool) -> dict:
+    if hybrid:
+        residual, _, env_kwargs = load_policy(f"residual-{views_suffix(views)}")
+        policy, env_kwargs = replace(HYBRID[views], track_m=track).around(residual, env_kwargs)
+    else:
+        policy, env_kwargs = depth_rrt(views, track_m=track)
     env = ReachEnv(num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs)
     tic = time.perf_counter()
     records = evaluate(env, policy, seeds)
     env.close()
     solved = [r.steps for r in records if r.success]
     return {
+        **({"hybrid": True} if hybrid else {}),
         "views": views,
         "track_m": track,
         "family": family,
@@ -66,21 +78,31 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--num-tasks", type=int, default=40)
     parser.add_argument("--views", type=int, default=2, choices=(3, 2, 1))
+    parser.add_argument("--hybrid", type=float, default=None, metavar="T")
     args = parser.parse_args()
     seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + OFFSET)
     out = HERE / "moving_track.jsonl"
+    hybrid = args.hybrid is not None
+    torch.set_num_threads(1)
+    kept = []
+    if out.exists():
+        kept = [json.loads(line) for line in out.read_text().splitlines()]
+        kept = [line for line in kept if line.get("hybrid", False) != hybrid]
     lines = []
     with out.open("w") as f:
-        for track in TRACKS:
+        for line in kept:
+            f.write(json.dumps(line) + "\n")
+        for track in (0.0, args.hybrid) if hybrid else TRACKS:
             for family in ("blocked", "obstacles"):
                 for speed in SPEEDS:
-                    line = measure(args.views, track, family, speed, seeds)
+                    line = measure(args.views, track, family, speed, seeds, hybrid)
                     lines.append(line)
                     print(json.dumps(line), flush=True)
                     f.write(json.dumps(line) + "\n")
                     f.flush()
     print("wrote", out)
-    print("chosen track_m:", choose(lines))
+    if not hybrid:
+        print("chosen track_m:", choose(lines))
 
 
 if __name__ == "__main__":

@@ -63,7 +63,9 @@ PLAN_TIME_S = 1.0
 MAX_GOAL_CANDIDATES = 4
 TRACK_M = 0.02
 """With a moving target (`track_m`, the `depth-rrt-*` baselines): plan again when the target is
-this far from where the current plan expected it (the success radius)."""
+this far from where the current plan expected it (the success radius). Chosen over 0.01 and
+0.04 m on 2-view validation tasks in session 44 (80 of 80 blocked tasks at 0.1 and 0.2 m/s,
+against 79 and 79; the baseline without it: 13; `results/stage2/shield/moving_track.jsonl`)."""
 MAX_TRACK_PLANS = 30
 """With a moving target: the plans an episode beyond `MAX_PLANS`, to meet it."""
 TRACK_RETRY_STEPS = 5
@@ -450,7 +452,7 @@ def rendered_views_env(num_views: int) -> dict:
 
 
 def depth_rrt(
-    num_views: int, plan_checks: int = 0, track_m: float = 0.0
+    num_views: int, plan_checks: int = 0, track_m: float = TRACK_M
 ) -> tuple[DepthShieldPlanner, dict]:
     """RRT on the depth map of `num_views` views, with no learned policy (a baseline beyond the
     paper, the classical counterpart of a vision policy on the same sensors): the hybrid's
@@ -458,9 +460,10 @@ def depth_rrt(
     planning at the first step of each episode on what the first views show, following the
     path through the shield and planning again when it stalls (at most `MAX_PLANS` plans of
     `PLAN_TIME_S`, or with `plan_checks` > 0 that many validity checks, the same plans on any
-    machine); while it has no path the arm holds still. With `track_m` > 0 it plans to meet a
-    moving target (`DepthShieldPlanner`). Returns the policy and the env options it observes
-    with (the views and the guard's depth cameras)."""
+    machine); while it has no path the arm holds still. It plans to meet a moving target
+    (`DepthShieldPlanner`'s `track_m`; 0: to where the target is, session 43's baseline; a
+    static target gets the same plans either way). Returns the policy and the env options it
+    observes with (the views and the guard's depth cameras)."""
     from clamgen.policy import HoldStill
 
     if num_views not in (1, 2, 3, 4):

@@ -47,9 +47,9 @@ RRT_TABLE1_NOTE = (
     "obstacle tasks (Table 2, `--table 2`); on moving targets its success is 0 by design"
 )
 DEPTH_RRT_TABLE1_NOTE = (
-    "RRT on the depth map plans to the target's position at the first step and again only when "
-    "the arm stalls: it is a baseline for static obstacle tasks (Table 2, "
-    "`--table 2`); a moving target leaves its plans behind"
+    "RRT on the depth map plans at the first step to meet the target where its observed "
+    "velocity will take it, and again when the target leaves that course or the arm stalls; "
+    "planning takes no simulated time (the arm and the target wait for each plan)"
 )
 
 
