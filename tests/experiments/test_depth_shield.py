@@ -308,6 +308,27 @@ def test_rrt_on_the_depth_map_meets_a_moving_target_and_plans_a_static_one_as_be
     assert met >= 2 and met > sum(success for success, _, _ in outcomes[0.2, 0.0])
 
 
+def test_a_hybrid_meeting_a_moving_target_plans_only_once_its_policy_stalls():
+    """`track_m` in a hybrid: the policy inside acts until it stalls, as without it; only
+    then does the planner meet the moving target."""
+    from clamgen.experiments.depth_planner import STUCK_STEPS, TRACK_M
+
+    env = ReachEnv(num_obstacles=0, obs_mode="both", num_views=VIEWS, image_size=SIZE,
+                   target_speed=0.2)  # fmt: skip
+    hybrid = DepthShieldPlanner(HoldStill(), VIEWS, SIZE, plan_checks=2_000, track_m=TRACK_M)
+    obs, _ = env.reset(seed=TEST_SEEDS.start)
+    hybrid.reset(env)
+    first_plan = None
+    for step in range(4 * STUCK_STEPS):
+        action = hybrid.act(obs)
+        if hybrid.num_plans and first_plan is None:
+            first_plan = step
+        obs, *_ = env.step(action)
+    env.close()
+    # The stall window's plan, no sooner (a tracker on its own would plan after a few steps).
+    assert first_plan is not None and first_plan >= STUCK_STEPS
+
+
 def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     """`--policy depth-rrt-<V>views`: the hybrid's shield and planner of V views around a held
     arm, planning first, on V rendered views; no other depth option goes with it."""

@@ -14,12 +14,13 @@ happens inside `act`, on the step that found the policy stuck (up to `PLAN_TIME_
 
 A moving target (`track_m` > 0; the `depth-rrt-*` baselines): the planner estimates the
 target's velocity from the last two goals it observed and plans to meet it, to where it will be
-when the path ends (`TargetTrack`); it plans again, beyond `MAX_PLANS`, when the target leaves
-the course it was planned on by `track_m` (a bounce off the goal box's face), when the path
-ends without the target there, or while it has no path, every `TRACK_RETRY_STEPS` steps (at
-most `MAX_TRACK_PLANS` such plans an episode). A static target never moves off its course, so
-these plans never happen for it. Planning takes no simulated time: the arm waits while it
-plans, an advantage over a real arm whose target keeps moving meanwhile.
+when the path ends (`TargetTrack`); once it has planned in an episode, it plans again, beyond
+`MAX_PLANS`, when the target leaves the course it was planned on by `track_m` (a bounce off the
+goal box's face), when the path ends without the target there, or while it has no path, every
+`TRACK_RETRY_STEPS` steps (at most `MAX_TRACK_PLANS` such plans an episode). A static target
+never moves off its course, so these plans never happen for it. Planning takes no simulated
+time: the arm and the target wait for each plan, an advantage over a real arm, whose target
+moves on while it plans.
 
 When the policy inside escapes from stalls itself (`stall.StallBurst`: a few steps of a random
 command; `DepthGuard(planner=True, escapes=True)`), the escapes are the way out where the
@@ -104,6 +105,11 @@ class TargetTrack:
     @property
     def moving(self) -> bool:
         return bool(self.velocity.any())
+
+    @property
+    def has_plan(self) -> bool:
+        """Whether a plan was made (or tried) since the last reset."""
+        return self._planned is not None
 
     def planned(self, goal: np.ndarray) -> None:
         """A plan was made (or tried) now, for the target at `goal`."""
@@ -242,9 +248,13 @@ class DepthShieldPlanner(DepthShield):
         return self.shield(joints, action)
 
     def _retrack(self, joints: np.ndarray, goal: np.ndarray, distance: float) -> bool:
-        """Whether a moving target calls for a plan beyond `MAX_PLANS`: off its course, at the
-        end of a path that missed it, or while there is no path (every `TRACK_RETRY_STEPS`)."""
-        if not (self.track_m and self.track.moving and self._track_plans < MAX_TRACK_PLANS):
+        """Whether a moving target calls for a plan beyond `MAX_PLANS`, once the planner has
+        planned in the episode (at the first step, or when the policy stalled): off its course,
+        at the end of a path that missed it, or while there is no path (every
+        `TRACK_RETRY_STEPS`; the policy inside acts meanwhile)."""
+        if not (self.track_m and self.track.moving and self.track.has_plan):
+            return False
+        if self._track_plans >= MAX_TRACK_PLANS:
             return False
         if self.track.off_course(goal) >= self.track_m:
             return True
