@@ -225,6 +225,7 @@ def test_eval_target_speed_is_table2s_and_not_negative(workdir):
     assert "--target-speed is Table 2's (Table 1 takes --speeds)" in message
     message = refused(workdir, "eval", "--table", "2", "--policy", "ik", "--target-speed", "-1")
     assert "bad --target-speed: target speed must be finite and >= 0 m/s, got -1.0" in message
+    assert "--real-time is Table 2's" in refused(workdir, "eval", "--policy", "ik", "--real-time")
 
 
 def test_eval_and_render_refuse_an_output_stem_whose_dot_would_be_a_suffix(workdir):

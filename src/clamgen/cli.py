@@ -378,6 +378,12 @@ class EvalConfig:
     """Table 2: the target's speed in m/s (0: static, as in the paper). A moving target among
     the obstacles is beyond the paper: the row's name says the speed, and the paper's numbers
     are not set beside it."""
+    real_time: bool = False
+    """Table 2: acting takes simulated time (beyond the paper; as in the paper, by default it
+    takes none): an act longer than the 50 ms control period holds the arm still a step for
+    each whole period it took, the target moving on (a planner's plans; the learned policies
+    act in about a millisecond). The row's name says it, its JSON has the held steps per task.
+    Depends on the machine's speed."""
     out: Path | None = None
     """Output stem: writes OUT.json and OUT.md (default: runs/eval/table<N>_<policy>, the
     policy's name or, for RUN_DIR/policy.pt, the run directory's)."""
@@ -435,6 +441,12 @@ class EvalConfig:
     validity checks instead of 1 s, so that the episodes do not depend on the machine's speed
     or load (about 10,000 checks a second on one core here;
     `depth_planner.DepthShieldPlanner`). 0: the time budget."""
+    depth_track_m: float | None = None
+    """With --depth-planner (or a `depth-rrt-*` baseline): plan to meet a moving target where
+    its observed velocity takes it, planning again when it is this far (m) off the course
+    planned for (`depth_planner.DepthShieldPlanner`, beyond the paper; a static target is
+    planned for the same either way). 0: plan to where the target is. Default: 0.02 for the
+    `depth-rrt-*` baselines and --depth-hybrid (chosen on validation tasks), else 0."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
     joint command, then the policy again, every step through the shield, which stops an escape
@@ -481,6 +493,8 @@ def evaluate_table(config: EvalConfig) -> list:
         raise SystemExit(f"--table must be 1 or 2, got {config.table}")
     if config.target_speed != 0 and config.table != 2:
         raise SystemExit("--target-speed is Table 2's (Table 1 takes --speeds)")
+    if config.real_time and config.table != 2:
+        raise SystemExit("--real-time is Table 2's")
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.config import check_table_seeds
     from clamgen.experiments.policies import load_policy, policy_observation
@@ -530,7 +544,7 @@ def evaluate_table(config: EvalConfig) -> list:
         policy, source, env_kwargs = load_policy(config.policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
-    policy, source, env_kwargs = _with_plan_checks(policy, source, env_kwargs, config)
+    policy, source, env_kwargs = _with_depth_rrt_options(policy, source, env_kwargs, config)
     if config.lookahead_candidates != 0:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
@@ -591,15 +605,17 @@ def _wants_depth_shield(config) -> bool:
 def _check_depth_request(config) -> None:
     """SystemExit, before any policy is loaded, for --depth-views without a depth wrapper's
     options, or for a `depth-rrt-*` baseline with any depth option but --depth-plan-checks
-    (it has the others' setting already)."""
+    and --depth-track-m (it has the others' setting already)."""
     if str(config.policy) in DEPTH_RRT_BASELINES:
-        others = dataclasses.replace(config, depth_plan_checks=0)
+        others = dataclasses.replace(config, depth_plan_checks=0, depth_track_m=None)
         if config.depth_hybrid or _depth_options_given(others) or config.depth_views:
             raise SystemExit(
                 f"--policy {config.policy} plans on the depth map of its own views through the "
-                "hybrid's shield already: drop the --depth-* options (but --depth-plan-checks)"
+                "hybrid's shield already: drop the --depth-* options (but --depth-plan-checks "
+                "and --depth-track-m)"
             )
         _plan_checks(config)
+        _track_m(config, 0.0)
         return
     wanted = _wants_depth_shield(config)
     if config.depth_views and not wanted:
@@ -618,6 +634,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_bridge_m != 0
         or config.depth_fine_size != 0
         or config.depth_plan_checks != 0
+        or config.depth_track_m is not None
         or config.depth_escapes
         or config.depth_escapes_before_plan != ESCAPES_BEFORE_PLAN
     )
@@ -714,6 +731,9 @@ def _depth_guard(config):
     bridge_m, checks = config.depth_bridge_m, _plan_checks(config)
     if checks != 0 and not planner:
         raise SystemExit("--depth-plan-checks needs --depth-planner (the planner it budgets)")
+    track_m = _track_m(config, 0.0)
+    if config.depth_track_m is not None and not planner:
+        raise SystemExit("--depth-track-m needs --depth-planner (the planner it steers)")
     escapes_first = _escapes_first(config)
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:
@@ -742,6 +762,7 @@ def _depth_guard(config):
         checks,
         config.depth_escapes,
         escapes_first,
+        track_m=track_m,
     )
 
 
@@ -750,6 +771,17 @@ def _plan_checks(config) -> int:
     if config.depth_plan_checks < 0:
         raise SystemExit(f"--depth-plan-checks must be >= 0, got {config.depth_plan_checks}")
     return config.depth_plan_checks
+
+
+def _track_m(config, default: float) -> float:
+    """`config`'s --depth-track-m, or `default` where it is not given; SystemExit when it is
+    negative or not finite."""
+    track_m = config.depth_track_m
+    if track_m is None:
+        return default
+    if not 0 <= track_m < float("inf"):
+        raise SystemExit(f"--depth-track-m must be a number >= 0, got {track_m}")
+    return track_m
 
 
 def _escapes_first(config) -> int:
@@ -778,17 +810,31 @@ def _with_action_scale(policy, source: str, scale: float):
         raise SystemExit(f"bad --action-scale: {error}") from error
 
 
-def _with_plan_checks(policy, source: str, env_kwargs: dict, config):
-    """A `depth-rrt-*` baseline with --depth-plan-checks N: built again with plans of N
-    validity checks (the same plans on any machine), its source saying so; anything else
-    unchanged."""
-    checks, name = config.depth_plan_checks, str(config.policy)
-    if name not in DEPTH_RRT_BASELINES or not checks:
+def _with_depth_rrt_options(policy, source: str, env_kwargs: dict, config):
+    """A `depth-rrt-*` baseline with --depth-plan-checks N or --depth-track-m M: built again
+    with plans of N validity checks (the same plans on any machine) or tracking a moving
+    target at M, its source saying so (`_depth_rrt_options`); anything else unchanged."""
+    name = str(config.policy)
+    changes = _depth_rrt_options(config)
+    if name not in DEPTH_RRT_BASELINES or not changes:
         return policy, source, env_kwargs
-    from clamgen.experiments.depth_planner import depth_rrt
+    from clamgen.experiments.depth_planner import TRACK_M, depth_rrt
 
-    policy, env_kwargs = depth_rrt(DEPTH_RRT_BASELINES[name], checks)
-    return policy, f"{source}, {checks} checks a plan", env_kwargs
+    views, checks = DEPTH_RRT_BASELINES[name], config.depth_plan_checks
+    policy, env_kwargs = depth_rrt(views, checks, _track_m(config, TRACK_M))
+    return policy, source + changes, env_kwargs
+
+
+def _depth_rrt_options(config) -> str:
+    """What a `depth-rrt-*` baseline's --depth-plan-checks and --depth-track-m change, as its
+    source and row name say it ("" for neither)."""
+    text = f", {config.depth_plan_checks} checks a plan" if config.depth_plan_checks else ""
+    track_m = config.depth_track_m
+    if track_m == 0:
+        text += ", planning to where the target is"
+    elif track_m is not None:
+        text += f", replanning {track_m:g} m off a moving target's course"
+    return text
 
 
 def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0):
@@ -871,7 +917,7 @@ def render(config) -> dict:
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
         policy, _, env_kwargs = _load_policy(config.policy)
-        policy, _, env_kwargs = _with_plan_checks(policy, "", env_kwargs, config)
+        policy, _, env_kwargs = _with_depth_rrt_options(policy, "", env_kwargs, config)
         policy, _ = _with_action_scale(policy, "", config.action_scale)
         if _wants_depth_shield(config):
             policy, _, env_kwargs = _with_depth_shield(policy, "", env_kwargs, config)
@@ -952,14 +998,16 @@ def _render_config(argv: list[str]):
 
 def _table2_row_name(config: EvalConfig, label: str) -> str:
     """`--name`, else the policy's Table 2 row name (`TABLE2_ROW_NAMES`, else `label`) with
-    what the options change: a depth-rrt baseline's budget in checks, a moving target."""
+    what the options change: a depth-rrt baseline's options, a moving target, real time."""
     if config.name:
         return config.name
     name = TABLE2_ROW_NAMES.get(str(config.policy), label)
-    if str(config.policy) in DEPTH_RRT_BASELINES and config.depth_plan_checks:
-        name += f", {config.depth_plan_checks} checks a plan"
+    if str(config.policy) in DEPTH_RRT_BASELINES:
+        name += _depth_rrt_options(config)
     if config.target_speed:
         name += f", target moving at {config.target_speed:g} m/s"
+    if config.real_time:
+        name += ", acting in real time"
     return name
 
 
@@ -980,7 +1028,15 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
     for family in config.families:
         print(f"evaluating {source} on {config.num_tasks} held-out {FAMILY_TITLES[family]} ...")
         rows.append(
-            table2_row(name, policy, config.num_tasks, env_kwargs, family, config.first_seed)
+            table2_row(
+                name,
+                policy,
+                config.num_tasks,
+                env_kwargs,
+                family,
+                config.first_seed,
+                config.real_time,
+            )
         )
         row = rows[-1]
         low, high = row.success_interval
@@ -990,6 +1046,9 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
             f"{row.act_max_ms:.1f} ms longest; {row.act_share_over_aim:.1%} of acts over "
             f"{ACT_AIM_MS:g} ms"
         )
+        if row.task_held_steps is not None:
+            held = sum(row.task_held_steps)
+            print(f"  real time: the arm held still {held} steps in all while the policy acted")
     meta = {
         "policy": source,
         "num_tasks": config.num_tasks,

@@ -282,6 +282,12 @@ def test_target_track_expects_straight_motion_and_counts_path_steps():
     assert track.off_course(goal + 4 * step) == pytest.approx(0.0)  # on course now
     assert track.off_course(goal + 2 * step) == pytest.approx(0.02)  # bounced back
     assert np.allclose(track.ahead(goal, 5), goal + 5 * step)
+    # Steps that passed unseen (the arm held still while a plan was computed): the velocity is
+    # the move over all of them, and the course counts them.
+    track.skip(2)
+    track.observe(goal + 7 * step)
+    assert np.allclose(track.velocity, step)
+    assert track.off_course(goal + 7 * step) == pytest.approx(0.0)
     joints = np.zeros(6)
     waypoints = np.array([[2.5, 0, 0, 0, 0, 0], [2.5, 1.0, 0, 0, 0, 0]]) * MAX_JOINT_DELTA_RAD
     assert follow_steps(joints, waypoints) == 3 + 1  # ceil(2.5) steps, then one
@@ -370,6 +376,11 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
             main(["eval", "--policy", "depth-rrt-2views", *extra, "--out", str(tmp_path / "x")])
     with pytest.raises(SystemExit, match="--depth-plan-checks must be >= 0"):
         main(["eval", "--policy", "depth-rrt-2views", "--depth-plan-checks", "-1"])
+    with pytest.raises(SystemExit, match="--depth-track-m must be a number >= 0"):
+        main(["eval", "--policy", "depth-rrt-2views", "--depth-track-m", "-1"])
+    with pytest.raises(SystemExit, match="--depth-track-m needs --depth-planner"):
+        main(["eval", "--policy", "residual-2views", "--depth-shield-m", "0.01",
+              "--depth-track-m", "0.02"])  # fmt: skip
     out = tmp_path / "depth_rrt"
     args = ["--table", "2", "--policy", "depth-rrt-1view", "--families", "blocked"]
     main(["eval", *args, "--num-tasks", "1", "--out", str(out)])
@@ -386,6 +397,20 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     assert runs[0]["name"].endswith("no learned policy (ours), 10000 checks a plan")
     assert runs[0]["task_steps"] == runs[1]["task_steps"]
     assert runs[0]["task_tip_path_m"] == runs[1]["task_tip_path_m"]
+    # --depth-track-m 0: session 43's baseline, planning to where a moving target is.
+    out = tmp_path / "depth_rrt_to_where_it_is"
+    main(["eval", *args, "--depth-track-m", "0", "--num-tasks", "1", "--out", str(out)])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"].endswith("no learned policy (ours), planning to where the target is")
+    # --real-time: the plans take simulated time, the row says so and counts the held steps.
+    out = tmp_path / "depth_rrt_real_time"
+    moving = ["--target-speed", "0.2", "--real-time", "--num-tasks", "2"]
+    main(["eval", *args, *moving, "--out", str(out)])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"].endswith("(ours), target moving at 0.2 m/s, acting in real time")
+    assert row["real_time"] and len(row["task_held_steps"]) == 2
+    held_and_steps = zip(row["task_held_steps"], row["task_steps"], strict=True)
+    assert all(0 <= held < steps for held, steps in held_and_steps)
 
 
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
@@ -628,8 +653,9 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     guard = HYBRID[views]
     finer = DepthGuard(0.02, True, 0.05, False, 0.03, 128, 5000)
     escaping = DepthGuard(0.01, fine_depth_size=128, escapes=True)
+    tracking = DepthGuard(0.01, planner=True, track_m=0.03)
     both = [replace(ESCAPES[views], planner=True, escapes_before_plan=first) for first in (0, 1, 2)]
-    for each in (guard, finer, escaping, *both):
+    for each in (guard, finer, escaping, tracking, *both):
         config = tyro.cli(EvalConfig, args=["--table", "2", *each.flags()])
         assert _depth_guard(config) == each
     config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid"])

@@ -1,4 +1,5 @@
 import json
+import time
 
 import numpy as np
 import pytest
@@ -60,3 +61,44 @@ def test_a_policy_warms_up_once_on_a_blank_observation_before_its_first_episode(
     second = run_episode(env, policy, seed=1_000_000_001)
     assert len(agent.seen) == first.steps + 1 + second.steps  # not again
     env.close()
+
+
+class _NotCLAMGen:
+    unwrapped = object()
+
+
+class _SlowFirstAct:
+    """Holds still; its first act of an episode takes `first_s` (a plan), and it counts the
+    steps it is told it did not see."""
+
+    def __init__(self, first_s: float) -> None:
+        self.first_s = first_s
+        self.skipped_steps: list[int] = []
+
+    def reset(self, env=None) -> None:
+        self._first = True
+
+    def act(self, obs):
+        if self._first:
+            time.sleep(self.first_s)
+            self._first = False
+        return np.zeros(6, np.float32)
+
+    def skipped(self, steps: int) -> None:
+        self.skipped_steps.append(steps)
+
+
+def test_real_time_holds_the_arm_still_for_each_control_period_an_act_took():
+    from clamgen.envs.reach_env import CONTROL_DT_S
+
+    env = ReachEnv(num_obstacles=0, target_speed=0.2, max_episode_steps=20)
+    slow = _SlowFirstAct(2.2 * CONTROL_DT_S)
+    record = run_episode(env, slow, 7, real_time=True)
+    late = int(record.act_times_s[0] // CONTROL_DT_S)
+    assert late >= 2 and record.held_steps == late and slow.skipped_steps == [late]
+    assert record.steps == 20 and len(record.act_times_s) == 20 - late  # the limit counts them
+    # By default acting takes no simulated time (the paper's setting).
+    record = run_episode(env, slow, 7)
+    assert record.held_steps == 0 and len(record.act_times_s) == record.steps == 20
+    with pytest.raises(ValueError, match="real_time needs a CLAMGen env"):
+        run_episode(_NotCLAMGen(), slow, 7, real_time=True)

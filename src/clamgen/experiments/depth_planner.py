@@ -94,13 +94,20 @@ class TargetTrack:
         self._last: np.ndarray | None = None
         self._planned: tuple[np.ndarray, np.ndarray] | None = None  # goal, velocity at the plan
         self.steps_since_plan = 0
+        self._unseen = 0  # steps since the last goal observed that were not observed
 
     def observe(self, goal: np.ndarray) -> None:
-        """One step's goal."""
+        """One step's goal (the steps `skip` reported passed before it)."""
+        elapsed, self._unseen = 1 + self._unseen, 0
         if self._last is not None:
-            self.velocity = goal - self._last
+            self.velocity = (goal - self._last) / elapsed
         self._last = goal.copy()
-        self.steps_since_plan += 1
+        self.steps_since_plan += elapsed
+
+    def skip(self, steps: int) -> None:
+        """`steps` steps passed unobserved (the arm held still while a plan was computed, in
+        `run_episode(real_time=True)`)."""
+        self._unseen += steps
 
     @property
     def moving(self) -> bool:
@@ -247,6 +254,11 @@ class DepthShieldPlanner(DepthShield):
             action = np.asarray(self.policy.act(obs), np.float64)
         return self.shield(joints, action)
 
+    def skipped(self, steps: int) -> None:
+        """`steps` env steps passed that this policy did not see (`run_episode(real_time=True)`:
+        the arm held still while it planned)."""
+        self.track.skip(steps)
+
     def _retrack(self, joints: np.ndarray, goal: np.ndarray, distance: float) -> bool:
         """Whether a moving target calls for a plan beyond `MAX_PLANS`, once the planner has
         planned in the episode (at the first step, or when the policy stalled): off its course,
@@ -328,8 +340,8 @@ class DepthGuard:
     checks), instead of by a plan or, with `planner` too, before one: the planner plans only
     once the policy has begun `escapes_before_plan` escapes in the episode, with `plan_first`
     planning at the first step of each episode too, with `track_m` > 0 planning to meet a
-    moving target (`DepthShieldPlanner`). The fields but `plan_first` and `track_m` are
-    `clamgen eval|render`'s `--depth-*` options (those two: the `depth-rrt-*` baselines,
+    moving target (`DepthShieldPlanner`). The fields but `plan_first` are `clamgen
+    eval|render`'s `--depth-*` options (`plan_first`: the `depth-rrt-*` baselines,
     `depth_rrt`)."""
 
     margin_m: float = MARGIN_M
@@ -380,13 +392,10 @@ class DepthGuard:
         return self.wrap(policy, views, size), env_kwargs | self.env_kwargs()
 
     def flags(self) -> tuple[str, ...]:
-        """The `clamgen eval` options that give this guard (a ValueError with `plan_first` or
-        `track_m`, which no option gives: the `depth-rrt-*` baselines have them)."""
-        if self.plan_first or self.track_m:
-            raise ValueError(
-                "no clamgen eval option plans first or meets a moving target: "
-                "use a depth-rrt-* policy"
-            )
+        """The `clamgen eval` options that give this guard (a ValueError with `plan_first`,
+        which no option gives: the `depth-rrt-*` baselines plan first)."""
+        if self.plan_first:
+            raise ValueError("no clamgen eval option plans first: use a depth-rrt-* policy")
         flags = ["--depth-shield-m", str(self.margin_m)]
         flags += ["--depth-planner"] if self.planner else []
         if self.shadow_m is not None:
@@ -395,6 +404,7 @@ class DepthGuard:
         flags += ["--depth-bridge-m", str(self.bridge_m)] if self.bridge_m else []
         flags += ["--depth-fine-size", str(self.fine_depth_size)] if self.fine_depth_size else []
         flags += ["--depth-plan-checks", str(self.plan_checks)] if self.plan_checks else []
+        flags += ["--depth-track-m", str(self.track_m)] if self.planner and self.track_m else []
         flags += ["--depth-escapes"] if self.escapes else []
         if self.escapes and self.planner and self.escapes_before_plan != ESCAPES_BEFORE_PLAN:
             flags += ["--depth-escapes-before-plan", str(self.escapes_before_plan)]

@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from clamgen.envs import ReachEnv
+from clamgen.envs.reach_env import CONTROL_DT_S
 from clamgen.policy import Policy
 
 
@@ -36,6 +37,9 @@ class EpisodeRecord:
     tip_measured: bool = True
     """`tip_path_m` is the gripper tip's path: true in CLAMGen envs, whose `achieved_goal` is
     the tip position in metres; another env's achieved goal may be anything."""
+    held_steps: int = 0
+    """With `real_time`: the steps the arm held still while the policy computed (counted in
+    `steps`)."""
 
     @property
     def success(self) -> bool:
@@ -64,20 +68,29 @@ def run_episode(
     seed: int,
     options: dict | None = None,
     on_step: StepHook | None = None,
+    real_time: bool = False,
 ) -> EpisodeRecord:
     """One episode of `policy` in `env` (a Gymnasium env with a TimeLimit or its own): the one
-    rollout loop of evaluation, the demo and the videos, which watch it through `on_step`."""
+    rollout loop of evaluation, the demo and the videos, which watch it through `on_step`.
+
+    `real_time` (a CLAMGen env; beyond the paper): an act that takes longer than the control
+    period (`CONTROL_DT_S`, 50 ms) costs a step of the arm holding still (a zero command) for
+    each whole period it took, before its action is applied: the target moves on meanwhile and
+    those steps count towards the time limit. A policy with `skipped(steps)` is told how many
+    steps it did not see (a planner that estimates the target's velocity). Without it, acting
+    takes no simulated time."""
+    if real_time and not isinstance(env.unwrapped, ReachEnv):
+        raise ValueError("real_time needs a CLAMGen env (its control period)")
     obs, _ = env.reset(seed=seed, options=options)
     policy.reset(env)
     record = EpisodeRecord(seed=seed, reached=False, collided=False, steps=0, tip_path_m=0.0)
     record.tip_measured = isinstance(env.unwrapped, ReachEnv)
     if on_step is not None:
         on_step(obs, None, False)
-    done = False
-    while not done:
-        start = time.perf_counter()
-        action = policy.act(obs)
-        record.act_times_s.append(time.perf_counter() - start)
+
+    def step(action) -> bool:
+        """One env step, recorded; whether the episode is over."""
+        nonlocal obs
         previous_tip = obs["achieved_goal"]
         start = time.perf_counter()
         obs, _, terminated, truncated, info = env.step(action)
@@ -90,12 +103,27 @@ def run_episode(
         done = terminated or truncated
         if on_step is not None:
             on_step(obs, info, done)
+        return done
+
+    done = False
+    while not done:
+        start = time.perf_counter()
+        action = policy.act(obs)
+        record.act_times_s.append(time.perf_counter() - start)
+        late = int(record.act_times_s[-1] // CONTROL_DT_S) if real_time else 0
+        for _ in range(late):
+            record.held_steps += 1
+            if done := step(np.zeros_like(action)):
+                break
+        if late and hasattr(policy, "skipped"):
+            policy.skipped(late)
+        done = done or step(action)
     return record
 
 
-def evaluate(env, policy: Policy, seeds) -> list[EpisodeRecord]:
-    """One episode per seed."""
-    return [run_episode(env, policy, int(seed)) for seed in seeds]
+def evaluate(env, policy: Policy, seeds, real_time: bool = False) -> list[EpisodeRecord]:
+    """One episode per seed (`run_episode`)."""
+    return [run_episode(env, policy, int(seed), real_time=real_time) for seed in seeds]
 
 
 def summarize(records: list[EpisodeRecord]) -> dict[str, float]:

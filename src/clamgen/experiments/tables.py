@@ -270,6 +270,12 @@ class ObstacleRow:
     """Steps and the tip's path length (m) per task, in seed order: how fast and how far the
     arm went, to compare rows on the tasks both solve; None in rows measured before session
     43."""
+    real_time: bool = False
+    """Acting took simulated time (`clamgen eval --table 2 --real-time`, beyond the paper): an
+    act longer than the 50 ms control period held the arm still a step for each whole period
+    (`evaluate.run_episode`); False, as in the paper, acting takes none."""
+    task_held_steps: list[int] | None = None
+    """With `real_time`: the steps per task the arm held still while the policy computed."""
 
     @property
     def num_successes(self) -> int:
@@ -316,6 +322,10 @@ class _PlanTimeRecorder:
     def act(self, obs):
         return self.policy.act(obs)
 
+    def skipped(self, steps: int) -> None:
+        if hasattr(self.policy, "skipped"):
+            self.policy.skipped(steps)
+
     def _close_episode(self) -> None:
         if self._acting:
             self.times.append(float(self.policy.episode_plan_time_s))
@@ -334,10 +344,12 @@ def table2_row(
     env_kwargs: dict[str, Any] | None = None,
     family: str = "obstacles",
     first_seed: int = TEST_SEEDS.start,
+    real_time: bool = False,
 ) -> ObstacleRow:
     """One Table 2 row: `policy` on `num_tasks` held-out tasks of `family`, seeds `first_seed`,
     `first_seed` + 1, ... (test seeds only: a ValueError otherwise); static targets unless
-    `env_kwargs` has a `target_speed`.
+    `env_kwargs` has a `target_speed`; with `real_time`, acting takes simulated time
+    (`evaluate.run_episode`).
 
     For a planner the per-task planning time is reported: for one with `last_plan_time_s`
     (the RRT baseline) it is spent in `reset`, before the first action, and is not part of the
@@ -349,7 +361,7 @@ def table2_row(
     seeds = check_table_seeds(first_seed, num_tasks)
     env = ReachEnv(num_obstacles=2, task_family=family, **(env_kwargs or {}))
     recorder = _PlanTimeRecorder(policy)
-    records = evaluate(env, recorder, seeds)
+    records = evaluate(env, recorder, seeds, real_time)
     env.close()
     times = recorder.finish()
     times = np.array(times) if times else None
@@ -375,6 +387,8 @@ def table2_row(
         target_speed=float((env_kwargs or {}).get("target_speed", 0.0)),
         task_steps=[int(r.steps) for r in records],
         task_tip_path_m=[round(float(r.tip_path_m), 5) for r in records],
+        real_time=real_time,
+        task_held_steps=[int(r.held_steps) for r in records] if real_time else None,
     )
 
 

@@ -92,6 +92,10 @@ class RenderConfig:
     depth_plan_checks: int = 0
     """With --depth-planner: a budget of this many validity checks a plan instead of 1 s, as
     `clamgen eval --depth-plan-checks`. 0: the time budget."""
+    depth_track_m: float | None = None
+    """With --depth-planner (or a `depth-rrt-*` baseline): plan to meet a moving target,
+    planning again when it is this far (m) off its course, as `clamgen eval --depth-track-m`
+    (0: to where it is)."""
     depth_escapes: bool = False
     """Random escapes from stalls inside the shield, as `clamgen eval --depth-escapes` (alone:
     the escape rows' setting; with --depth-planner, before its plans)."""
