@@ -406,10 +406,11 @@ class EvalConfig:
     depth_hybrid: bool = False
     """A vision residual acts as Table 2's hybrid rows: through the depth shield at 1 cm with
     the planner when stuck, both reading 128-pixel depth cameras at the views' poses, and
-    from one view keeping the hand out of unseen space within 5 cm behind seen surfaces
-    (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper; the settings chosen on
-    validation tasks). Not with the other --depth-* options. From one view --depth-escapes
-    --depth-planner does better on the blocked tasks (`results/stage2/ensemble/aims.md`)."""
+    from one view keeping the hand out of unseen space within 5 cm behind seen surfaces, the
+    planner meeting a moving target (`clamgen.experiments.depth_planner.HYBRID`, beyond the
+    paper; the settings chosen on validation tasks). Not with the other --depth-* options.
+    From one view --depth-escapes --depth-planner does better on the blocked tasks
+    (`results/stage2/ensemble/aims.md`)."""
     depth_shield_m: float | None = None
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen
