@@ -3,7 +3,8 @@
 # (results/stage2/shield/README.md, "Session 44: acting in real time"): the shipped residuals
 # alone and in their hybrids, and the depth-map planners, an act longer than the control
 # period holding the arm still. Usage: realtime.sh SPEED VIEWS... (files
-# realtime/<row>-<views>-0p2.*); an evaluation whose JSON exists is skipped.
+# realtime/<row>-<views>-0p2.*; at SPEED 0, the static targets, the residuals alone are not
+# run: files realtime/<row>-<views>-0.*); an evaluation whose JSON exists is skipped.
 set -euo pipefail
 cd "$(dirname "$0")/../../../.."
 out=results/stage2/shield/moving/realtime
@@ -13,6 +14,7 @@ for v in "$@"; do
     for row in depth-rrt-track hybrid-track residual; do
         stem="$out/$row-$v-${speed/./p}"
         [ -f "$stem.json" ] && continue
+        [ "$speed" = 0 ] && [ "$row" = residual ] && continue
         case $row in
             residual) args=(--policy "residual-$v") ;;
             hybrid-track) args=(--policy "residual-$v" --depth-hybrid) ;;
