@@ -4,6 +4,7 @@ depth map plans again to meet it (`DepthShieldPlanner(track_m=...)`; protocol in
 
     python results/stage2/shield/moving_track.py [--views 2] [--num-tasks 40]
     python results/stage2/shield/moving_track.py --hybrid 0.02
+    python results/stage2/shield/moving_track.py --latency
 
 `depth_planner.depth_rrt(views, track_m=T)` for each T of `TRACKS` (0: session 43's baseline,
 which plans to where the target is), on `--num-tasks` validation tasks (offset 460000 into the
@@ -12,7 +13,10 @@ per (views, track, family, speed) in `moving_track.jsonl`: successes, collisions
 the mean steps of the successes; then the rule's choice. With `--hybrid T`: the shipped
 residual of `--views` in its hybrid (`depth_planner.HYBRID`) as committed (track 0) and with
 its planner meeting the target (`track_m` T), lines marked `"hybrid": true` (added to the
-file's other lines).
+file's other lines). With `--latency`: the planner meeting the target (`TRACK_M`) acting in
+real time at 0.2 m/s (`run_episode(real_time=True)`), without and with
+`DepthShieldPlanner(latency=True)`, lines marked `"latency"` (false / true) and
+`"real_time": true`.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import torch
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
-from clamgen.experiments.depth_planner import HYBRID, depth_rrt
+from clamgen.experiments.depth_planner import HYBRID, TRACK_M, depth_rrt
 from clamgen.experiments.evaluate import evaluate
 from clamgen.experiments.policies import load_policy, views_suffix
 
@@ -38,19 +42,32 @@ SPEEDS = (0.1, 0.2)
 TRACKS = (0.0, 0.01, 0.02, 0.04)
 
 
-def measure(views: int, track: float, family: str, speed: float, seeds, hybrid: bool) -> dict:
+def measure(
+    views: int,
+    track: float,
+    family: str,
+    speed: float,
+    seeds,
+    hybrid: bool,
+    latency: bool | None = None,
+) -> dict:
+    """One setting on `seeds` of `family`; `latency` not None: in real time, the planner
+    expecting its own latency or not."""
     if hybrid:
         residual, _, env_kwargs = load_policy(f"residual-{views_suffix(views)}")
         policy, env_kwargs = replace(HYBRID[views], track_m=track).around(residual, env_kwargs)
     else:
         policy, env_kwargs = depth_rrt(views, track_m=track)
     env = ReachEnv(num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs)
+    if latency is not None:
+        policy.latency = latency
     tic = time.perf_counter()
-    records = evaluate(env, policy, seeds)
+    records = evaluate(env, policy, seeds, real_time=latency is not None)
     env.close()
     solved = [r.steps for r in records if r.success]
     return {
         **({"hybrid": True} if hybrid else {}),
+        **({"latency": latency, "real_time": True} if latency is not None else {}),
         "views": views,
         "track_m": track,
         "family": family,
@@ -79,6 +96,7 @@ def main() -> None:
     parser.add_argument("--num-tasks", type=int, default=40)
     parser.add_argument("--views", type=int, default=2, choices=(3, 2, 1))
     parser.add_argument("--hybrid", type=float, default=None, metavar="T")
+    parser.add_argument("--latency", action="store_true")
     args = parser.parse_args()
     seeds = VALIDATION_SEEDS.seeds(args.num_tasks, VALIDATION_SEEDS.start + OFFSET)
     out = HERE / "moving_track.jsonl"
@@ -87,11 +105,23 @@ def main() -> None:
     kept = []
     if out.exists():
         kept = [json.loads(line) for line in out.read_text().splitlines()]
-        kept = [line for line in kept if line.get("hybrid", False) != hybrid]
+        if args.latency:
+            kept = [line for line in kept if "latency" not in line]
+        else:
+            kept = [line for line in kept if line.get("hybrid", False) != hybrid]
     lines = []
     with out.open("w") as f:
         for line in kept:
             f.write(json.dumps(line) + "\n")
+        if args.latency:
+            for latency in (False, True):
+                for family in ("blocked", "obstacles"):
+                    line = measure(args.views, TRACK_M, family, 0.2, seeds, False, latency)
+                    print(json.dumps(line), flush=True)
+                    f.write(json.dumps(line) + "\n")
+                    f.flush()
+            print("wrote", out)
+            return
         for track in (0.0, args.hybrid) if hybrid else TRACKS:
             for family in ("blocked", "obstacles"):
                 for speed in SPEEDS:

@@ -157,7 +157,9 @@ class DepthShieldPlanner(DepthShield):
     instead of only once the policy stalls (with a policy that holds still, `HoldStill`: RRT
     on the depth map alone, the `depth-rrt-*` baselines). `track_m` > 0: a moving target is
     met where it will be, and planned for again when it leaves its course by `track_m`
-    (`TargetTrack`, the module's docstring); 0, plans go to where the target is.
+    (`TargetTrack`, the module's docstring); 0, plans go to where the target is. `latency`:
+    with it, the target is met that many steps further ahead as the arm held still after the
+    last plan (`skipped`, acting in real time: the planner's own latency; 0 otherwise).
     `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`, `shadow_m`,
     `shadow_behind_surfaces`, `bridge_m`, `fine_depth_size`), passed on as they are.
     """
@@ -176,6 +178,7 @@ class DepthShieldPlanner(DepthShield):
         escapes_before_plan: int = ESCAPES_BEFORE_PLAN,
         plan_first: bool = False,
         track_m: float = 0.0,
+        latency: bool = False,
         **shield_options: Any,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
@@ -184,6 +187,9 @@ class DepthShieldPlanner(DepthShield):
             raise ValueError(f"track_m must be a number >= 0, got {track_m}")
         self.track_m = track_m
         self.track = TargetTrack()
+        self.latency = latency
+        self.latency_steps = 0  # held steps after the last plan (carried across episodes)
+        self._planned_last_act = False
         if escapes_before_plan < 0:
             raise ValueError(f"escapes_before_plan must be >= 0, got {escapes_before_plan}")
         self.escapes_before_plan = escapes_before_plan
@@ -238,6 +244,7 @@ class DepthShieldPlanner(DepthShield):
             and (escapes is None or escapes >= self.escapes_before_plan)
         )
         retrack = not due and self._retrack(joints, goal, distance)
+        self._planned_last_act = due or retrack
         if due or retrack:
             self._plans += int(due)
             self._track_plans += int(retrack)
@@ -258,6 +265,8 @@ class DepthShieldPlanner(DepthShield):
         """`steps` env steps passed that this policy did not see (`run_episode(real_time=True)`:
         the arm held still while it planned)."""
         self.track.skip(steps)
+        if self._planned_last_act:
+            self.latency_steps = steps
 
     def _retrack(self, joints: np.ndarray, goal: np.ndarray, distance: float) -> bool:
         """Whether a moving target calls for a plan beyond `MAX_PLANS`, once the planner has
@@ -282,7 +291,8 @@ class DepthShieldPlanner(DepthShield):
         path = self.plan(joints, goal)
         if not (self.track_m and self.track.moving) or path is None:
             return path
-        ahead = self.plan(joints, self.track.ahead(goal, follow_steps(joints, path)))
+        steps = follow_steps(joints, path) + (self.latency_steps if self.latency else 0)
+        ahead = self.plan(joints, self.track.ahead(goal, steps))
         return path if ahead is None else ahead
 
     def _follow(self, joints: np.ndarray) -> np.ndarray:
