@@ -335,6 +335,29 @@ def test_a_hybrid_meeting_a_moving_target_plans_only_once_its_policy_stalls():
     assert first_plan is not None and first_plan >= STUCK_STEPS
 
 
+def test_the_planner_learns_its_latency_only_from_steps_held_after_a_plan():
+    """Acting in real time the arm holds still while a plan is computed: the planner meets the
+    target that much further ahead (`latency`); without real time it is never told, and plans
+    as before."""
+    pytest.importorskip("ompl.base")
+    from clamgen.experiments.depth_planner import depth_rrt
+
+    planner, env_kwargs = depth_rrt(2, plan_checks=2_000)
+    assert planner.latency and planner.latency_steps == 0
+    env = ReachEnv(num_obstacles=2, task_family="blocked", target_speed=0.2, **env_kwargs)
+    obs, _ = env.reset(seed=TEST_SEEDS.start)
+    planner.reset(env)
+    action = planner.act(obs)  # plans first
+    planner.skipped(3)
+    assert planner.latency_steps == 3
+    obs, *_ = env.step(action)
+    planner.act(obs)
+    if not planner._planned_last_act:
+        planner.skipped(5)  # held after an act that did not plan: not the planner's latency
+        assert planner.latency_steps == 3
+    env.close()
+
+
 def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     """`--policy depth-rrt-<V>views`: the hybrid's shield and planner of V views around a held
     arm, planning first, on V rendered views; no other depth option goes with it."""

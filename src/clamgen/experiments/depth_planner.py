@@ -20,7 +20,8 @@ goal box's face), when the path ends without the target there, or while it has n
 `TRACK_RETRY_STEPS` steps (at most `MAX_TRACK_PLANS` such plans an episode). A static target
 never moves off its course, so these plans never happen for it. Planning takes no simulated
 time: the arm and the target wait for each plan, an advantage over a real arm, whose target
-moves on while it plans.
+moves on while it plans; acting in real time (`evaluate.run_episode(real_time=True)`) the arm
+holds still while it plans, and the planner expects that latency (`latency`).
 
 When the policy inside escapes from stalls itself (`stall.StallBurst`: a few steps of a random
 command; `DepthGuard(planner=True, escapes=True)`), the escapes are the way out where the
@@ -159,7 +160,9 @@ class DepthShieldPlanner(DepthShield):
     met where it will be, and planned for again when it leaves its course by `track_m`
     (`TargetTrack`, the module's docstring); 0, plans go to where the target is. `latency`:
     with it, the target is met that many steps further ahead as the arm held still after the
-    last plan (`skipped`, acting in real time: the planner's own latency; 0 otherwise).
+    last plan (`skipped`, acting in real time: the planner's own latency; 0 otherwise, so
+    without real time it changes nothing). On by default since session 44 (in real time on
+    2-view validation tasks at 0.2 m/s, 40 against 23 of 40 blocked tasks).
     `shield_options`: the rest of `DepthShield`'s options (`sliding`, `extrude_m`, `shadow_m`,
     `shadow_behind_surfaces`, `bridge_m`, `fine_depth_size`), passed on as they are.
     """
@@ -178,7 +181,7 @@ class DepthShieldPlanner(DepthShield):
         escapes_before_plan: int = ESCAPES_BEFORE_PLAN,
         plan_first: bool = False,
         track_m: float = 0.0,
-        latency: bool = False,
+        latency: bool = True,
         **shield_options: Any,
     ) -> None:
         super().__init__(policy, num_views, image_size, margin_m, seed, **shield_options)
