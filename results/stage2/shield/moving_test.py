@@ -41,8 +41,16 @@ PLANNERS = (
 )
 PAIRS_AGAINST = {"depth-rrt": (ALONE, HYBRID_STALE), "depth-rrt-track": (ALONE, HYBRID_TRACK)}
 """The rows set task by task against each planner: session 43's, and session 44's."""
-REAL_TIME = (("depth-rrt-track", "RRT on the depth map, meeting the target"), HYBRID_TRACK, ALONE)
-"""The rows run in real time (`moving/realtime.sh`), 0.2 m/s."""
+REAL_TIME = (
+    ("depth-rrt-track", "RRT on the depth map, meeting the target"),
+    ("depth-rrt-track-latency", "the same, expecting its own latency"),
+    HYBRID_TRACK,
+    ("hybrid-track-latency", "the same, its planner expecting its own latency"),
+    ALONE,
+)
+"""The rows run in real time (`moving/realtime.sh`), 0.2 m/s; a `-latency` row's planner
+expects its own latency, which changes nothing without real time (its row without it is the
+same stem's without `-latency`)."""
 ARRIVAL = HERE / "arrival"
 STATIC = {
     "depth-rrt-track": ("RRT on the depth map", "depth-rrt-{}.json"),
@@ -186,7 +194,8 @@ def real_time_table() -> list[str]:
                 name = f"{stem}-{views_suffix(views)}-0p2.json"
                 if (RUNS / "realtime" / name).exists():
                     now = RUNS / "realtime" / name
-                    lines.append(real_time_line(views, family, words, RUNS / name, now))
+                    before = RUNS / name.replace("-latency", "")
+                    lines.append(real_time_line(views, family, words, before, now))
     lines += ["", "### Static targets (without it: `arrival/`, Table 2's rows re-run)", "", *header]
     for views in (3, 2, 1):
         for family in FAMILIES:
