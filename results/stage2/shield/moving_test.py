@@ -170,6 +170,42 @@ def real_time_line(views: int, family: str, words: str, before: Path, now: Path)
     )
 
 
+def real_time_seed_table() -> list[str]:
+    """The hybrid (its planner meeting the target and expecting its latency) in real time at
+    0.2 m/s over training seeds (`moving/realtime_seeds.sh`, the shipped seed's row first)."""
+    lines = [
+        "### The hybrid over training seeds, in real time at 0.2 m/s",
+        "",
+        "| views | family | seeds | success | collisions | held steps a task | per seed |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for views in (3, 2, 1):
+        suffix = views_suffix(views)
+        runs = [(SHIPPED_SEED, RUNS / "realtime" / f"hybrid-track-latency-{suffix}-0p2.json")]
+        runs += [
+            (
+                seed,
+                RUNS / "realtime" / "seeds" / f"hybrid-track-latency-{suffix}-seed{seed}-0p2.json",
+            )
+            for seed in SEEDS[views]
+        ]
+        runs = [(seed, path) for seed, path in runs if path.exists()]
+        if not runs:
+            continue
+        for family in FAMILIES:
+            scored = [rows(path)[family] for _, path in runs]
+            held = np.mean([np.mean(row["task_held_steps"]) for row in scored])
+            each = ", ".join(
+                f"{seed}: {rates(row)}" for (seed, _), row in zip(runs, scored, strict=True)
+            )
+            lines.append(
+                f"| {views} | {family} | {len(runs)} "
+                f"| {over_seeds([row['success_rate'] for row in scored])} "
+                f"| {over_seeds([row['collision_rate'] for row in scored])} | {held:.1f} | {each} |"
+            )
+    return lines
+
+
 def real_time_table() -> list[str]:
     header = [
         "| views | family | row | as in the paper (acting takes no time) | real time "
@@ -196,6 +232,7 @@ def real_time_table() -> list[str]:
                     now = RUNS / "realtime" / name
                     before = RUNS / name.replace("-latency", "")
                     lines.append(real_time_line(views, family, words, before, now))
+    lines += ["", *real_time_seed_table()]
     lines += ["", "### Static targets (without it: `arrival/`, Table 2's rows re-run)", "", *header]
     for views in (3, 2, 1):
         for family in FAMILIES:
