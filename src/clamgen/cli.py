@@ -551,18 +551,18 @@ def evaluate_table(config: EvalConfig) -> list:
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
         )
     policy, source = _with_action_scale(policy, source, config.action_scale)
+    policy_name = str(config.policy)
+    row_name = TABLE2_ROW_NAMES.get(policy_name, label)  # Table 2's, without --name
     if _wants_depth_shield(config):
         plain = source
         policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
-        if config.name is None:  # the row is named after the policy and its wrapper
-            policy_name = str(config.policy)
-            name = GUARDED_ROW_NAMES.get(policy_name) or TABLE2_ROW_NAMES.get(policy_name, label)
-            name = guarded_row_name(name, source[len(plain) :], config.depth_views)
-            config = dataclasses.replace(config, name=name)
+        # The row is named after the policy and its wrapper.
+        name = GUARDED_ROW_NAMES.get(policy_name) or row_name
+        row_name = guarded_row_name(name, source[len(plain) :], config.depth_views)
     if env_id not in ENV_IDS:
         return _evaluate_other_env(config, policy, source, label, env_id)
     if config.table == 2:
-        return _evaluate_table2(config, policy, source, label, out, env_kwargs)
+        return _evaluate_table2(config, policy, source, row_name, out, env_kwargs)
     note = RRT_TABLE1_NOTE if config.policy == "rrt" else None
     note = DEPTH_RRT_TABLE1_NOTE if str(config.policy) in DEPTH_RRT_BASELINES else note
     if note:
@@ -997,12 +997,12 @@ def _render_config(argv: list[str]):
     )
 
 
-def _table2_row_name(config: EvalConfig, label: str) -> str:
-    """`--name`, else the policy's Table 2 row name (`TABLE2_ROW_NAMES`, else `label`) with
-    what the options change: a depth-rrt baseline's options, a moving target, real time."""
+def _table2_row_name(config: EvalConfig, name: str) -> str:
+    """`--name`, else the policy's Table 2 row name `name` (with its depth wrapper's, if any)
+    and what the options change: a depth-rrt baseline's options, a moving target, real
+    time."""
     if config.name:
         return config.name
-    name = TABLE2_ROW_NAMES.get(str(config.policy), label)
     if str(config.policy) in DEPTH_RRT_BASELINES:
         name += _depth_rrt_options(config)
     if config.target_speed:
@@ -1012,8 +1012,9 @@ def _table2_row_name(config: EvalConfig, label: str) -> str:
     return name
 
 
-def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_kwargs: dict):
-    """One Table 2 row name, one `ObstacleRow` per task family (written together)."""
+def _evaluate_table2(config: EvalConfig, policy, source, row_name, out: Path, env_kwargs: dict):
+    """One Table 2 row name (`_table2_row_name` of `row_name`), one `ObstacleRow` per task
+    family (written together)."""
     from clamgen.experiments.tables import (
         ACT_AIM_MS,
         FAMILY_TITLES,
@@ -1024,7 +1025,7 @@ def _evaluate_table2(config: EvalConfig, policy, source, label, out: Path, env_k
 
     if config.target_speed:
         env_kwargs = env_kwargs | {"target_speed": config.target_speed}
-    name = _table2_row_name(config, label)
+    name = _table2_row_name(config, row_name)
     rows = []
     for family in config.families:
         print(f"evaluating {source} on {config.num_tasks} held-out {FAMILY_TITLES[family]} ...")

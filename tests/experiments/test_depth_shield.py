@@ -669,6 +669,15 @@ def test_a_policy_that_sees_no_images_acts_through_the_wrapper_on_rendered_views
         "IK interpolation (no obstacle model)" + ESCAPES[1].describe() + ", 1 view rendered for it"
     )
     assert row["family"] == "blocked" and row["num_tasks"] == 1
+    # A wrapped row says a moving target and real time too, as an unwrapped one does.
+    out = tmp_path / "ik_escapes_moving"
+    moving = ["--target-speed", "0.2", "--real-time", "--families", "blocked", "--num-tasks", "1"]
+    main(["eval", *args, *moving, "--out", str(out)])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"] == (
+        "IK interpolation (no obstacle model)" + ESCAPES[1].describe() + ", 1 view rendered for "
+        "it, target moving at 0.2 m/s, acting in real time"
+    )
 
 
 @pytest.mark.parametrize("views", sorted(HYBRID))
