@@ -35,6 +35,14 @@ def test_scaled_policy_shortens_each_step_in_the_same_direction():
     np.testing.assert_array_equal(ScaledPolicy(inner, 1.0).act({}), inner.action)
 
 
+def test_scaled_policy_tells_the_wrapped_policy_the_steps_it_did_not_see():
+    inner = Recording([1.0] * 6)
+    inner.skipped = lambda steps: inner.resets.append(("skipped", steps))
+    ScaledPolicy(inner, 0.5).skipped(3)
+    assert inner.resets == [("skipped", 3)]
+    ScaledPolicy(Recording([1.0] * 6), 0.5).skipped(3)  # a policy that does not listen
+
+
 @pytest.mark.parametrize("scale", [0.0, -0.5, 1.01, float("nan"), float("inf")])
 def test_scaled_policy_refuses_a_scale_outside_0_1(scale):
     with pytest.raises(ValueError, match=r"action scale must be in \(0, 1\]"):

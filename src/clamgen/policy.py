@@ -55,3 +55,9 @@ class ScaledPolicy:
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         return np.float32(self.scale) * np.asarray(self.policy.act(obs), np.float32)
+
+    def skipped(self, steps: int) -> None:
+        """Passed on to the wrapped policy, if it listens (`evaluate.run_episode(real_time=True)`:
+        a planner that counts the steps it did not see)."""
+        if hasattr(self.policy, "skipped"):
+            self.policy.skipped(steps)
