@@ -49,11 +49,13 @@ def measure(row: str, family: str, speed: float, seeds) -> dict:
     env = ReachEnv(num_obstacles=2, task_family=family, target_speed=speed, **env_kwargs)
     records = evaluate(env, policy, seeds)
     env.close()
+    return {"family": family, "speed": speed, "row": row, **outcomes(records)}
+
+
+def outcomes(records) -> dict:
+    """Tasks, successes, collisions and the mean steps of the successes of some episodes."""
     solved = [r.steps for r in records if r.success]
     return {
-        "family": family,
-        "speed": speed,
-        "row": row,
         "num_tasks": len(records),
         "successes": len(solved),
         "collisions": sum(r.collided for r in records),

@@ -27,8 +27,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import torch
+from moving_targets import outcomes  # (this directory: the script's own)
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
@@ -64,7 +64,6 @@ def measure(
     tic = time.perf_counter()
     records = evaluate(env, policy, seeds, real_time=latency is not None)
     env.close()
-    solved = [r.steps for r in records if r.success]
     return {
         **({"hybrid": True} if hybrid else {}),
         **({"latency": latency, "real_time": True} if latency is not None else {}),
@@ -72,11 +71,8 @@ def measure(
         "track_m": track,
         "family": family,
         "speed": speed,
-        "num_tasks": len(records),
-        "successes": len(solved),
-        "collisions": sum(r.collided for r in records),
+        **outcomes(records),
         "plans": policy.num_plans,
-        "mean_steps_of_successes": float(np.mean(solved)) if solved else None,
         "wall_s": round(time.perf_counter() - tic, 1),
     }
 
