@@ -429,11 +429,14 @@ def test_render_keeps_an_existing_video(workdir):
     assert f"{Path('runs/videos/ik.mp4')} exists; pass --overwrite to replace it" in message
 
 
-def test_render_and_demo_refuse_a_negative_seed(workdir):
+def test_render_demo_view_and_export_refuse_a_negative_seed(workdir):
     assert "--seed must be >= 0, got -5" in refused(
         workdir, "render", "--policy", "ik", "--seed", "-5"
     )
     assert "--seed must be >= 0, got -1" in refused(workdir, "demo", "--seed", "-1")
+    assert "--seed must be >= 0, got -2" in refused(workdir, "export-scene", "--seed", "-2")
+    # Before the viewer looks for a display.
+    assert "--seed must be >= 0, got -3" in refused(workdir, "view", "--seed", "-3")
 
 
 def test_render_refuses_a_bad_outcome_search(workdir):

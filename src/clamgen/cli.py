@@ -56,6 +56,16 @@ def describe_machine() -> str:
     return describe()
 
 
+def _check_task_seed(seed: int) -> None:
+    """`experiments.config.check_task_seed`, as a one-line SystemExit."""
+    from clamgen.experiments.config import check_task_seed
+
+    try:
+        check_task_seed(seed)
+    except ValueError as error:
+        raise SystemExit(str(error)) from error
+
+
 @dataclass(frozen=True)
 class DemoConfig:
     """Render the scene from every camera and roll out the IK-interpolation policy."""
@@ -85,8 +95,7 @@ def demo(config: DemoConfig) -> dict:
         raise SystemExit(f"unknown env_id {config.env_id!r}; choose one of {ENV_IDS}")
     if config.num_episodes < 1:
         raise SystemExit("num_episodes must be >= 1")
-    if config.seed < 0:
-        raise SystemExit(f"--seed must be >= 0, got {config.seed}")
+    _check_task_seed(config.seed)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     env = gym.make(
         config.env_id,
@@ -404,13 +413,13 @@ class EvalConfig:
     """With --lookahead-candidates: the clearance (m) its plans keep from obstacles and the
     table where they can (0: true contact)."""
     depth_hybrid: bool = False
-    """A vision residual acts as Table 2's hybrid rows: through the depth shield at 1 cm with
-    the planner when stuck, both reading 128-pixel depth cameras at the views' poses, and
-    from one view keeping the hand out of unseen space within 5 cm behind seen surfaces, the
-    planner meeting a moving target (`clamgen.experiments.depth_planner.HYBRID`, beyond the
-    paper; the settings chosen on validation tasks). Not with the other --depth-* options.
-    From one view --depth-escapes --depth-planner does better on the blocked tasks
-    (`results/stage2/ensemble/aims.md`)."""
+    """A vision residual acts as Table 2's hybrid rows: through the depth shield at 1 cm with the
+    planner when stuck, both reading 128-pixel depth cameras at the views' poses, and from one view
+    keeping the hand out of unseen space within 5 cm behind seen surfaces, the planner meeting a
+    moving target (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper; the settings chosen
+    on validation tasks). Not with the other --depth-* options but --depth-plan-checks and
+    --depth-track-m, which set its planner's. From one view --depth-escapes --depth-planner does
+    better on the blocked tasks (`results/stage2/ensemble/aims.md`)."""
     depth_shield_m: float | None = None
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen
@@ -438,14 +447,14 @@ class EvalConfig:
     extra sensor, beyond the paper); the policy still acts on its own images. 0: the
     policy's own images."""
     depth_plan_checks: int = 0
-    """With --depth-planner (or a `depth-rrt-*` baseline): each plan may spend this many
-    validity checks instead of 1 s, so that the episodes do not depend on the machine's speed
-    or load (about 10,000 checks a second on one core here;
+    """With --depth-planner or --depth-hybrid (or a `depth-rrt-*` baseline): each plan may spend
+    this many validity checks instead of 1 s, so that the episodes do not depend on the machine's
+    speed or load (about 10,000 checks a second on one core here;
     `depth_planner.DepthShieldPlanner`). 0: the time budget."""
     depth_track_m: float | None = None
-    """With --depth-planner (or a `depth-rrt-*` baseline): plan to meet a moving target where
-    its observed velocity takes it, planning again when it is this far (m) off the course
-    planned for (`depth_planner.DepthShieldPlanner`, beyond the paper; a static target is
+    """With --depth-planner or --depth-hybrid (or a `depth-rrt-*` baseline): plan to meet a moving
+    target where its observed velocity takes it, planning again when it is this far (m) off the
+    course planned for (`depth_planner.DepthShieldPlanner`, beyond the paper; a static target is
     planned for the same either way). 0: plan to where the target is. Default: 0.02 for the
     `depth-rrt-*` baselines and --depth-hybrid (chosen on validation tasks), else 0."""
     depth_escapes: bool = False
@@ -654,13 +663,18 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
 
     from clamgen.experiments.depth_planner import ESCAPES, ESCAPES_PLANNER, HYBRID
 
-    if config.depth_hybrid and _depth_options_given(config):
-        raise SystemExit("--depth-hybrid sets the depth options itself: drop the others")
+    # A preset's planner takes --depth-plan-checks and --depth-track-m; the rest it sets.
+    planning = dataclasses.replace(config, depth_plan_checks=0, depth_track_m=None)
+    if config.depth_hybrid and _depth_options_given(planning):
+        raise SystemExit(
+            "--depth-hybrid sets the depth options itself: drop the others (but "
+            "--depth-plan-checks and --depth-track-m)"
+        )
     # --depth-escapes without a shield's options (with --depth-planner or not): the escape
     # rows' shield.
     escapes_alone = config.depth_escapes and not _depth_options_given(
         dataclasses.replace(
-            config,
+            planning,
             depth_escapes=False,
             depth_planner=False,
             depth_escapes_before_plan=ESCAPES_BEFORE_PLAN,
@@ -678,7 +692,7 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     guard = None if preset else _depth_guard(config)
     env_kwargs = depth_views_env(env_kwargs, config.depth_views)
     views = env_kwargs["num_views"]
-    guard = guard or preset[min(views, max(preset))]
+    guard = guard or _preset_planning(preset[min(views, max(preset))], config)
     if guard.planner and find_spec("ompl") is None:
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
     try:
@@ -997,6 +1011,19 @@ def _render_config(argv: list[str]):
     )
 
 
+def _preset_planning(guard, config):
+    """A preset `DepthGuard` (`--depth-hybrid`, `--depth-escapes [--depth-planner]`) with
+    `config`'s --depth-plan-checks and --depth-track-m for its planner; SystemExit where it has
+    none."""
+    checks, track_m = _plan_checks(config), _track_m(config, guard.track_m)
+    if (checks or config.depth_track_m is not None) and not guard.planner:
+        raise SystemExit(
+            "--depth-plan-checks and --depth-track-m need a planner (--depth-planner): "
+            "--depth-escapes alone never plans"
+        )
+    return dataclasses.replace(guard, plan_checks=checks or guard.plan_checks, track_m=track_m)
+
+
 def _table2_row_name(config: EvalConfig, name: str) -> str:
     """`--name`, else the policy's Table 2 row name `name` (with its depth wrapper's, if any)
     and what the options change: a depth-rrt baseline's options, a moving target, real
@@ -1082,8 +1109,7 @@ def export_scene(config: ExportSceneConfig) -> Path:
 
     from clamgen.sim.scene import START_KEY, task_mjcf
 
-    if config.seed < 0:
-        raise SystemExit(f"--seed must be >= 0, got {config.seed}")
+    _check_task_seed(config.seed)
     env = gym.make(config.env_id).unwrapped
     env.reset(seed=config.seed)
     task = env.task

@@ -703,6 +703,39 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
     assert around_kwargs == kwargs
 
 
+@pytest.mark.parametrize("views", sorted(HYBRID))
+def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
+    env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
+    planning = ["--depth-plan-checks", "5000", "--depth-track-m", "0"]
+    for preset, guard in (
+        (["--depth-hybrid"], HYBRID[views]),
+        (["--depth-escapes", "--depth-planner"], ESCAPES_PLANNER[views]),
+    ):
+        config = tyro.cli(EvalConfig, args=["--table", "2", *preset, *planning])
+        shielded, source, _ = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+        assert source == replace(guard, plan_checks=5000, track_m=0.0).describe()
+        assert (shielded.rrt.max_checks, shielded.track_m) == (5000, 0.0)
+    # Session 43's hybrid (planning to where the target is) by name, and the default kept.
+    config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid", "--depth-track-m", "0"])
+    assert (
+        "meeting a moving target"
+        not in _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)[1]
+    )
+    config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-escapes", "--depth-planner"])
+    shielded = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)[0]
+    assert shielded.track_m == ESCAPES_PLANNER[views].track_m == 0.0
+    for args, message in (
+        (["--depth-escapes", "--depth-track-m", "0.02"], "need a planner"),
+        (["--depth-escapes", "--depth-plan-checks", "100"], "need a planner"),
+        (["--depth-hybrid", "--depth-track-m", "-1"], "must be a number >= 0"),
+        (["--depth-hybrid", "--depth-plan-checks", "-1"], "must be >= 0"),
+        (["--depth-hybrid", "--depth-fine-size", "64"], "--depth-hybrid sets the depth options"),
+    ):
+        config = tyro.cli(EvalConfig, args=["--table", "2", *args])
+        with pytest.raises(SystemExit, match=message):
+            _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+
+
 def test_hybrid_guards_describe_the_committed_hybrid_rows():
     one_view = Path("results/table2/planned_hidden_fine_residual-1view.json")
     two_views = Path("results/table2/planned_fine_residual-2views.json")

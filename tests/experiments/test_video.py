@@ -12,6 +12,7 @@ from clamgen.experiments.video import (
     HOLD_FINAL_FRAMES,
     OVERVIEW_SIZE,
     RenderConfig,
+    render_env_rollouts,
     render_rollouts,
 )
 
@@ -85,3 +86,38 @@ def test_render_without_the_outcome_asked_for_writes_nothing(tmp_path):
     assert not list(tmp_path.iterdir())
     with pytest.raises(ValueError, match="max_tries"):
         render_rollouts(replace(config, max_tries=0), IKInterpolationPolicy(), "ik")
+
+
+class _SlowFirstIK(IKInterpolationPolicy):
+    """IK interpolation whose first act of an episode takes three control periods (a plan)."""
+
+    def reset(self, env=None) -> None:
+        super().reset(env)
+        self._first = True
+
+    def act(self, obs):
+        if self._first:
+            import time
+
+            from clamgen.envs.reach_env import CONTROL_DT_S
+
+            time.sleep(3.2 * CONTROL_DT_S)
+            self._first = False
+        return super().act(obs)
+
+
+def test_render_in_real_time_films_the_steps_held_while_acting(tmp_path):
+    config = RenderConfig(
+        policy="ik", env_id=ENV_IDS[0], num_episodes=1, num_views=0, out=tmp_path / "slow"
+    )
+    summary = render_rollouts(replace(config, real_time=True), _SlowFirstIK(), "ik")
+    episode = summary["episodes"][0]
+    assert episode["held_steps"] >= 3 and summary["real_time"] and summary["machine"]
+    reader = imageio.get_reader(tmp_path / "slow.mp4")
+    assert reader.count_frames() == episode["steps"] + HOLD_FINAL_FRAMES
+    # Without it the same policy takes no simulated time: three steps fewer.
+    plain = render_rollouts(replace(config, out=tmp_path / "plain"), _SlowFirstIK(), "ik")
+    assert "held_steps" not in plain["episodes"][0] and "real_time" not in plain
+    assert plain["episodes"][0]["steps"] == episode["steps"] - episode["held_steps"]
+    with pytest.raises(ValueError, match="real-time needs a CLAMGen env"):
+        render_env_rollouts(replace(config, real_time=True), _SlowFirstIK(), "ik", "Pendulum-v1")

@@ -86,6 +86,14 @@ def check_table_seeds(first: int, count: int) -> np.ndarray:
     return TEST_SEEDS.seeds(count, first)
 
 
+def check_task_seed(seed: int) -> int:
+    """A task seed for the commands that show tasks (`demo`, `export-scene`, `render`, `view`):
+    any seed >= 0 (showing a training or validation task tunes nothing); a ValueError else."""
+    if seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {seed}")
+    return seed
+
+
 def check_training_seed(seed: int) -> int:
     """A training loop seed whose env seeds all lie in the training range; a ValueError else."""
     if not (isinstance(seed, int | np.integer) and 0 <= seed <= MAX_TRAINING_LOOP_SEED):

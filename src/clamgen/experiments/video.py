@@ -21,6 +21,7 @@ from PIL import Image, ImageDraw
 from tqdm import tqdm
 
 from clamgen.envs import ENV_IDS, ENV_TASKS, ReachEnv
+from clamgen.experiments.config import check_task_seed
 from clamgen.experiments.evaluate import run_episode
 from clamgen.experiments.outputs import check_output_stem
 from clamgen.experiments.policies import PolicyName
@@ -90,11 +91,11 @@ class RenderConfig:
     """With --depth-shield-m: the shield reads a finer depth camera at this size, as
     `clamgen eval --depth-fine-size`. 0: the policy's own images."""
     depth_plan_checks: int = 0
-    """With --depth-planner: a budget of this many validity checks a plan instead of 1 s, as
-    `clamgen eval --depth-plan-checks`. 0: the time budget."""
+    """With --depth-planner or --depth-hybrid: a budget of this many validity checks a plan instead
+    of 1 s, as `clamgen eval --depth-plan-checks`. 0: the time budget."""
     depth_track_m: float | None = None
-    """With --depth-planner (or a `depth-rrt-*` baseline): plan to meet a moving target,
-    planning again when it is this far (m) off its course, as `clamgen eval --depth-track-m`
+    """With --depth-planner or --depth-hybrid (or a `depth-rrt-*` baseline): plan to meet a moving
+    target, planning again when it is this far (m) off its course, as `clamgen eval --depth-track-m`
     (0: to where it is)."""
     depth_escapes: bool = False
     """Random escapes from stalls inside the shield, as `clamgen eval --depth-escapes` (alone:
@@ -108,6 +109,11 @@ class RenderConfig:
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1] (a slower arm), as `clamgen eval
     --action-scale`. 1: as trained."""
+    real_time: bool = False
+    """Acting takes simulated time, as `clamgen eval --table 2 --real-time`: an act longer than
+    the 50 ms control period holds the arm still a step for each whole period it took (a
+    planner's plans), the target moving on; the captions and the JSON say how many steps it
+    held. Depends on the machine's speed (and slows with the rendering beside it)."""
 
 
 def _caption(frame: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]) -> np.ndarray:
@@ -195,13 +201,17 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
     renderer = RolloutRenderer(env, config.num_views)
 
     def episode(seed: int, caption: str) -> tuple[dict, list, list]:
+        caption += "  real time" if config.real_time else ""
         film = _EpisodeFilm(renderer, caption)
-        record = run_episode(env, policy, seed, on_step=film)
+        record = run_episode(env, policy, seed, on_step=film, real_time=config.real_time)
         outcome = ("SUCCESS" if record.success else "FAILURE", GREEN if record.success else RED)
-        lines = [(f"{caption}  step {record.steps}", WHITE), outcome]
+        steps = f"step {record.steps}"
+        steps += f" ({record.held_steps} held while acting)" if config.real_time else ""
+        lines = [(f"{caption}  {steps}", WHITE), outcome]
         final = renderer.frame(np.array(film.tips), lines, border=outcome[1])
         frames = film.frames + [final] * HOLD_FINAL_FRAMES
-        return record.outcome(), frames, film.gif_frames + [final] * (HOLD_FINAL_FRAMES // 2)
+        result = record.outcome() | ({"held_steps": record.held_steps} if config.real_time else {})
+        return result, frames, film.gif_frames + [final] * (HOLD_FINAL_FRAMES // 2)
 
     try:
         summary = _write_films(config, out, label, episode, macro_block_size=8)
@@ -209,6 +219,11 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         renderer.close()
         env.close()
     summary = {"policy": label, "env_id": config.env_id, "target_speed": speed, **summary}
+    if config.real_time:
+        from clamgen.experiments.machine import describe
+
+        summary["real_time"] = True
+        summary["machine"] = describe()
     out.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     return summary
 
@@ -220,8 +235,7 @@ Episode = Callable[[int, str], tuple[dict, list[np.ndarray], list[np.ndarray]]]
 def _check_counts(config: RenderConfig) -> None:
     if config.num_episodes < 1 or config.fps < 1:
         raise ValueError("num_episodes and fps must be >= 1")
-    if config.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {config.seed}")
+    check_task_seed(config.seed)
     if config.outcome not in ("any", "success", "failure"):
         raise ValueError(f"outcome must be any, success or failure, got {config.outcome!r}")
     if config.outcome != "any" and config.max_tries < config.num_episodes:
@@ -341,6 +355,8 @@ def render_env_rollouts(config: RenderConfig, policy, label: str, env_id: str) -
     from clamgen.experiments.evaluate import check_policy_fits, make_goal_env
 
     _check_counts(config)
+    if config.real_time:
+        raise ValueError("--real-time needs a CLAMGen env (its control period)")
     out = output_stem(config, label)
     env = make_goal_env(env_id, render_mode="rgb_array")
 

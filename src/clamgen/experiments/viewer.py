@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 
 from clamgen.envs import CONTROL_DT_S, ENV_IDS, ENV_TASKS, ReachEnv
+from clamgen.experiments.config import check_task_seed
 from clamgen.experiments.evaluate import run_episode
 from clamgen.experiments.policies import PolicyName
 
@@ -280,6 +281,7 @@ def view(config: ViewConfig, policy, label: str, env_kwargs: dict | None = None)
         raise ValueError(f"--env-id must be one of {ENV_IDS}, got {config.env_id!r}")
     if config.num_episodes < 1:
         raise ValueError(f"--num-episodes must be >= 1, got {config.num_episodes}")
+    check_task_seed(config.seed)
     if config.steps_per_second <= 0:
         raise ValueError(f"--steps-per-second must be > 0, got {config.steps_per_second}")
     if config.max_steps is not None and config.max_steps < 1:
