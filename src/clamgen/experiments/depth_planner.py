@@ -404,6 +404,14 @@ class DepthGuard:
         views, size = env_kwargs["num_views"], env_kwargs["image_size"]
         return self.wrap(policy, views, size), env_kwargs | self.env_kwargs()
 
+    def wrap_env(self, env):
+        """`env` (a CLAMGen `ReachEnv` with this guard's views, `env_kwargs`) with every
+        action passing this guard in `env.step`, for agents that act through the env
+        (`guarded_env.GuardedEnv`)."""
+        from clamgen.experiments.guarded_env import GuardedEnv
+
+        return GuardedEnv(env, self)
+
     def flags(self) -> tuple[str, ...]:
         """The `clamgen eval` options that give this guard (a ValueError with `plan_first`,
         which no option gives: the `depth-rrt-*` baselines plan first)."""
