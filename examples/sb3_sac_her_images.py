@@ -8,6 +8,7 @@ vectorised `compute_reward` serves SB3's `HerReplayBuffer` as it is.
     pip install -e ".[bench]"   # stable-baselines3
     python examples/sb3_sac_her_images.py                      # 1000 steps, 1-2 min on 2 CPU cores
     python examples/sb3_sac_her_images.py --steps 100000 --buffer-size 100000 --device cuda
+    python examples/sb3_sac_her_images.py --eval-guard escapes  # also through a depth wrapper
 
 The default is a smoke run of the whole pipeline, far too short to learn the task: it prints the
 training speed and the success rate of the deterministic policy on held-out tasks, and saves the
@@ -28,16 +29,31 @@ import numpy as np
 
 import clamgen  # noqa: F401  (registers the CLAMGen env ids)
 from clamgen.envs.wrappers import StackedViews
+from clamgen.experiments.depth_planner import ESCAPES, HYBRID, DepthGuard
+
+SHIELD = dict.fromkeys(HYBRID, DepthGuard())
 
 # Evaluation tasks: seeds far above the small ones the training env starts from.
 FIRST_EVAL_SEED = 2_000_000_000
+GUARDS = {"none": None, "shield": SHIELD, "escapes": ESCAPES, "hybrid": HYBRID}
+"""The depth wrappers the trained model can also be evaluated through (`--eval-guard`):
+the shield alone at 1 cm, the escape rows' and the hybrid rows' settings by number of views."""
 
 
-def make_env(num_views: int, image_size: int) -> gym.Env:
-    """The obstacle env with joints, goals and `num_views` RGBD views stacked channel-first."""
+def make_env(num_views: int, image_size: int, guard: str = "none") -> gym.Env:
+    """The obstacle env with joints, goals and `num_views` RGBD views stacked channel-first;
+    with a `guard` (`GUARDS`), every action passes that depth wrapper in `env.step`."""
+    setting = GUARDS[guard]
+    extra = setting[num_views].env_kwargs() if setting else {}
     env = gym.make(
-        "CLAMGen/ReachObstacles-v0", num_views=num_views, image_size=image_size, obs_mode="both"
+        "CLAMGen/ReachObstacles-v0",
+        num_views=num_views,
+        image_size=image_size,
+        obs_mode="both",
+        **extra,
     )
+    if setting:
+        env = setting[num_views].wrap_env(env)  # reads the views before they are stacked
     return StackedViews(env)
 
 
@@ -64,6 +80,13 @@ def main() -> None:
     parser.add_argument("--buffer-size", type=int, default=None, help="default: --steps")
     parser.add_argument("--learning-starts", type=int, default=500, help="random steps first")
     parser.add_argument("--eval-episodes", type=int, default=10, help="held-out tasks")
+    parser.add_argument(
+        "--eval-guard",
+        choices=sorted(GUARDS),
+        default="none",
+        help="also evaluate through this depth wrapper inside env.step (GuardedEnv; the "
+        "hybrid plans with OMPL)",
+    )
     parser.add_argument("--device", default="auto", help="torch device (cpu, cuda, auto)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/sb3_sac_her_images/model.zip"))
@@ -106,6 +129,11 @@ def main() -> None:
     print(f"trained {args.steps} steps in {seconds:.1f} s ({args.steps / seconds:.1f} steps/s)")
     rate = success_rate(model, make_env(args.num_views, args.image_size), args.eval_episodes)
     print(f"success rate on {args.eval_episodes} held-out tasks: {rate:.2f}")
+    if args.eval_guard != "none":
+        guarded = make_env(args.num_views, args.image_size, args.eval_guard)
+        rate = success_rate(model, guarded, args.eval_episodes)
+        print(f"through the {args.eval_guard} guard in env.step, the same tasks: {rate:.2f}")
+        guarded.close()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     model.save(args.out)
     print(f"saved {args.out}")

@@ -63,6 +63,9 @@ def test_acting_through_the_guarded_env_gives_the_wrapped_policys_episodes(guard
         assert not all(followed) and not collided
     if guard.planner:
         assert guarded.policy.num_plans == wrapped.num_plans > 0
+    # The finer depth camera is the guard's: the agent observes the env's other entries.
+    hidden = {"fine_depth"} if guard.fine_depth_size else set()
+    assert set(guarded.observation_space.spaces) == set(env.observation_space.spaces) - hidden
     env.close()
     guarded.close()
 

@@ -6,9 +6,11 @@ another library (Stable-Baselines3's `model.predict`, a training loop of one's o
 `env.step` instead. `GuardedEnv` gives it the same guard there: each step the agent's action
 goes to the guard as the action of the policy it wraps, and the env applies what the guard
 chose: the action itself, its shielded replacement, a step of a plan on the depth map, or a
-random escape. The wrapper reads the env's own observations (joints, goal, depth images), so
-it goes directly around a CLAMGen `ReachEnv` with RGBD views, inside any wrapper that changes
-the observation layout (`clamgen.envs.wrappers.StackedViews` for SB3):
+random escape. The agent observes what the env shows but the finer depth camera a guard may
+read (`fine_depth`, the guard's own sensor). The wrapper reads the env's own observations
+(joints, goal, depth images), so it goes directly around a CLAMGen `ReachEnv` with RGBD views,
+inside any wrapper that changes the observation layout (`clamgen.envs.wrappers.StackedViews`
+for SB3):
 
     from clamgen.envs import ReachEnv
     from clamgen.experiments.depth_planner import HYBRID
@@ -86,12 +88,20 @@ class GuardedEnv(gym.Wrapper):
         self._given = _GivenAction()
         self.policy = guard.wrap(self._given, base.num_views, base.image_size)
         self._obs: dict[str, np.ndarray] | None = None
+        # The finer depth camera is the guard's sensor: the agent observes what it would
+        # without the guard.
+        self._hidden = ("fine_depth",) if guard.fine_depth_size else ()
+        shown = {key: sub for key, sub in space.spaces.items() if key not in self._hidden}
+        self.observation_space = gym.spaces.Dict(shown)
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         self.policy.reset(self.env)
         self._obs = obs
-        return obs, info
+        return self._shown(obs), info
+
+    def _shown(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {key: value for key, value in obs.items() if key not in self._hidden}
 
     def step(self, action):
         if self._obs is None:
@@ -105,4 +115,4 @@ class GuardedEnv(gym.Wrapper):
         self._obs = obs
         followed = self._given.asked and bool(np.all(np.abs(applied - given) <= FOLLOWED_TOL))
         info = {**info, "applied_action": applied, "agent_action_followed": followed}
-        return obs, reward, terminated, truncated, info
+        return self._shown(obs), reward, terminated, truncated, info
