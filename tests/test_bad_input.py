@@ -228,6 +228,15 @@ def test_eval_target_speed_is_table2s_and_not_negative(workdir):
     assert "--real-time is Table 2's" in refused(workdir, "eval", "--policy", "ik", "--real-time")
 
 
+def test_eval_depth_noise_is_table2s_and_needs_views(workdir):
+    noise = ("--depth-noise-m", "0.01")
+    assert "--depth-noise-m is Table 2's" in refused(workdir, "eval", "--policy", "ik", *noise)
+    message = refused(workdir, "eval", "--table", "2", "--policy", "ik", "--depth-noise-m", "-1")
+    assert "--depth-noise-m must be a number >= 0, got -1.0" in message
+    message = refused(workdir, "eval", "--table", "2", "--policy", "ik", "--num-tasks", "1", *noise)
+    assert "--depth-noise-m perturbs the views' depth: this policy observes none" in message
+
+
 def test_eval_and_render_refuse_an_output_stem_whose_dot_would_be_a_suffix(workdir):
     """`--out run-0.1` would write run-0.json (the files' suffixes replace '.1')."""
     for command in ("eval", "render"):

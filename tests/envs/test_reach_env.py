@@ -280,6 +280,9 @@ def test_bad_input_is_refused_clearly():
         ({"task_family": "reach", "num_obstacles": 2}, "needs num_obstacles = 0"),
         ({"fine_depth_size": 64}, "needs num_views >= 1"),
         ({"fine_depth_size": 4, "num_views": 1, "obs_mode": "both"}, "fine_depth_size"),
+        ({"depth_noise_m": 0.01}, "needs num_views >= 1"),
+        ({"depth_noise_m": -0.01, "num_views": 1, "obs_mode": "both"}, "depth_noise_m"),
+        ({"depth_noise_m": float("nan"), "num_views": 1, "obs_mode": "both"}, "depth_noise_m"),
     ]:
         with pytest.raises(ValueError, match=message):
             ReachEnv(**kwargs)
@@ -300,6 +303,45 @@ def test_fine_depth_is_the_views_depth_rendered_finer():
         np.testing.assert_array_equal(obs_fine["fine_depth"], obs_plain["images"][:, 3:])
     fine.close()
     plain.close()
+
+
+def test_depth_noise_grows_with_the_square_of_the_depth_and_keeps_the_tasks():
+    from clamgen.sim.constants import DEPTH_RANGE_M
+    from clamgen.sim.render import uint8_to_depth
+
+    noise_m = 0.01
+    kwargs = {"num_views": 3, "obs_mode": "both", "image_size": 64, "fine_depth_size": 64}
+    clean = make(ENV_IDS[2], **kwargs)
+    noisy = make(ENV_IDS[2], depth_noise_m=noise_m, **kwargs)
+    check_env(noisy, skip_render_check=True)
+    level_m = (DEPTH_RANGE_M[1] - DEPTH_RANGE_M[0]) / 255
+    action = np.full(6, 0.3)
+    for env in (clean, noisy):
+        env.reset(seed=11)
+    for _ in range(3):
+        obs_clean, obs_noisy = clean.step(action)[0], noisy.step(action)[0]
+        # The same task, target and arm; RGB untouched.
+        for key in ("observation", "achieved_goal", "desired_goal"):
+            np.testing.assert_array_equal(obs_clean[key], obs_noisy[key])
+        np.testing.assert_array_equal(obs_clean["images"][:, :3], obs_noisy["images"][:, :3])
+        depth = uint8_to_depth(obs_clean["images"][:, 3])
+        error = uint8_to_depth(obs_noisy["images"][:, 3]) - depth
+        inside = (depth > DEPTH_RANGE_M[0] + 0.1) & (depth < DEPTH_RANGE_M[1] - 0.3)
+        # Normalised by the model's deviation, the error is about standard normal (up to the
+        # depth's quantisation, a level of about 9 mm).
+        scaled = error[inside] / (noise_m * depth[inside] ** 2)
+        assert abs(scaled.mean()) < 0.1 and 0.9 < scaled.std() < 1.3
+        assert np.abs(error[inside]).max() > 2 * level_m
+        # The guard's finer camera gets its own draw of the same model.
+        fine_error = uint8_to_depth(obs_noisy["fine_depth"][:, 0]) - depth
+        assert not np.array_equal(fine_error, error)
+        assert 0.9 < (fine_error[inside] / (noise_m * depth[inside] ** 2)).std() < 1.3
+    # Seeded: the same noise again.
+    first = noisy.reset(seed=11)[0]["images"]
+    np.testing.assert_array_equal(first, noisy.reset(seed=11)[0]["images"])
+    assert not np.array_equal(first, noisy.reset(seed=12)[0]["images"])
+    clean.close()
+    noisy.close()
 
 
 def test_render_mode_rgb_array_gives_an_outside_view():

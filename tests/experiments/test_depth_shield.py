@@ -434,6 +434,12 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     assert row["real_time"] and len(row["task_held_steps"]) == 2
     held_and_steps = zip(row["task_held_steps"], row["task_steps"], strict=True)
     assert all(0 <= held < steps for held, steps in held_and_steps)
+    # --depth-noise-m: the views' depth noisy, the row says so and records it.
+    out = tmp_path / "depth_rrt_noisy"
+    main(["eval", *args, "--depth-noise-m", "0.002", "--num-tasks", "1", "--out", str(out)])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"].endswith("no learned policy (ours), depth noise sd 0.002*z^2 m")
+    assert row["depth_noise_m"] == 0.002
 
 
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():

@@ -69,6 +69,8 @@ DEFAULT_IMAGE_SIZE = 128
 # num_views * image_size pixels across (4096 at 4 views, within every GL implementation's
 # framebuffer limit), and one 1024 px RGBD view is already 4 MiB per stored observation.
 MAX_IMAGE_SIZE = 1024
+DEPTH_NOISE_STREAM = 0xDE9
+"""Mixed into the reset seed for the depth noise's own random stream (`depth_noise_m`)."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +107,14 @@ class ReachEnv(gym.Env):
         zoom_views: also render, after the V views, a zoomed view from each view camera's
             position turned to the target (`constants.ZOOM_FOVY_DEG`; beyond the paper):
             `images` is then (2V, 4, H, W).
+        depth_noise_m: > 0: every depth pixel (`images`' depth channel and `fine_depth`) gets
+            Gaussian noise along its ray before quantisation, of standard deviation
+            `depth_noise_m * z**2` at depth z (m): the axial noise of structured-light and
+            stereo RGBD cameras grows with the square of the distance (about 0.0015 for a
+            Kinect v1, Khoshelham & Elberink 2012; 0.01 is a RealSense D435's 2% at 2 m).
+            Drawn afresh every frame from a stream of its own (seeded by `reset(seed=...)`), so
+            the tasks and the target's motion are those without noise; 0: exact depth (the
+            paper's setting; beyond the paper otherwise).
     """
 
     metadata: ClassVar[dict] = {
@@ -128,6 +138,7 @@ class ReachEnv(gym.Env):
         task_family: str | None = None,
         fine_depth_size: int = 0,
         zoom_views: bool = False,
+        depth_noise_m: float = 0.0,
     ) -> None:
         num_obstacles = _integer("num_obstacles", num_obstacles, 0, C.MAX_OBSTACLES)
         task_family = task_family or ("obstacles" if num_obstacles else "reach")
@@ -163,6 +174,13 @@ class ReachEnv(gym.Env):
             raise ValueError(f"zoom_views must be True or False, got {zoom_views!r}")
         if zoom_views and not num_views:
             raise ValueError("zoom_views renders a zoomed view per view: it needs num_views >= 1")
+        if not (
+            isinstance(depth_noise_m, int | float | np.integer | np.floating)
+            and 0 <= depth_noise_m < np.inf
+        ):
+            raise ValueError(f"depth_noise_m must be a finite number >= 0, got {depth_noise_m!r}")
+        if depth_noise_m and not num_views:
+            raise ValueError("depth_noise_m perturbs the views' depth: it needs num_views >= 1")
         if max_episode_steps is not None:
             max_episode_steps = _integer("max_episode_steps", max_episode_steps, 1)
         if not (
@@ -190,6 +208,8 @@ class ReachEnv(gym.Env):
         self.collision_ends_episode = bool(collision_ends_episode)
         self.max_episode_steps = max_episode_steps
         self.render_mode = render_mode
+        self.depth_noise_m = float(depth_noise_m)
+        self._noise_rng = np.random.default_rng(DEPTH_NOISE_STREAM)
 
         self.scene = Scene(collision_margin_m)
         cameras = [*self.scene.camera_ids[: self.num_views]]
@@ -277,6 +297,11 @@ class ReachEnv(gym.Env):
         elif not isinstance(task, reach.Task):
             raise TypeError(f"options['task'] must be a clamgen Task, got {type(task).__name__}")
         self._task = task
+        if self.depth_noise_m:
+            # Its own stream: with a seed, the task and the target's motion stay those without
+            # noise.
+            entropy = seed if seed is not None else int(self.np_random.integers(2**63))
+            self._noise_rng = np.random.default_rng([entropy, DEPTH_NOISE_STREAM])
         SimState(task.start_joints, task.target_position_m, task.obstacles).apply(self.scene)
         self._target_velocity = np.array(task.target_velocity_mps, dtype=np.float64)
         self._num_steps = 0
@@ -419,12 +444,21 @@ class ReachEnv(gym.Env):
             mujoco.mj_kinematics(scene.model, scene.data)  # mocap target moved since last update
             if self.zoom_views:
                 mujoco.mj_camlight(scene.model, scene.data)  # the zoomed cameras turn to it
-            obs["images"] = images_from_render(*self._renderer.render(scene.data))
+            rgb, depth_m = self._renderer.render(scene.data)
+            obs["images"] = images_from_render(rgb, self._noisy(depth_m))
         if self._fine_renderer is not None:
-            obs["fine_depth"] = depth_to_uint8(self._fine_renderer.render(scene.data)[1])[:, None]
+            depth_m = self._noisy(self._fine_renderer.render(scene.data)[1])
+            obs["fine_depth"] = depth_to_uint8(depth_m)[:, None]
         if self.include_obstacle_state:
             obs["obstacles"] = scene.obstacles.as_array()
         return obs
+
+    def _noisy(self, depth_m: np.ndarray) -> np.ndarray:
+        """`depth_m` (V, H, W) metres with the sensor noise of `depth_noise_m` (itself at 0)."""
+        if not self.depth_noise_m:
+            return depth_m
+        noise = self._noise_rng.standard_normal(depth_m.shape, np.float32)
+        return depth_m + noise * (np.float32(self.depth_noise_m) * depth_m * depth_m)
 
     def _reset_info(self) -> dict[str, Any]:
         distance = float(np.linalg.norm(self.scene.tip_position() - self.scene.target_position))

@@ -276,6 +276,9 @@ class ObstacleRow:
     (`evaluate.run_episode`); False, as in the paper, acting takes none."""
     task_held_steps: list[int] | None = None
     """With `real_time`: the steps per task the arm held still while the policy computed."""
+    depth_noise_m: float = 0.0
+    """The depth images' noise, standard deviation `depth_noise_m * z**2` at depth z (m)
+    (`clamgen eval --table 2 --depth-noise-m`, beyond the paper); 0, as in the paper: exact."""
 
     @property
     def num_successes(self) -> int:
@@ -389,6 +392,7 @@ def table2_row(
         task_tip_path_m=[round(float(r.tip_path_m), 5) for r in records],
         real_time=real_time,
         task_held_steps=[int(r.held_steps) for r in records] if real_time else None,
+        depth_noise_m=float((env_kwargs or {}).get("depth_noise_m", 0.0)),
     )
 
 

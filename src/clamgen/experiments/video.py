@@ -109,6 +109,9 @@ class RenderConfig:
     action_scale: float = 1.0
     """The policy's actions multiplied by this, in (0, 1] (a slower arm), as `clamgen eval
     --action-scale`. 1: as trained."""
+    depth_noise_m: float = 0.0
+    """Noise on every depth pixel the policy and its wrapper read, standard deviation
+    `depth_noise_m * z**2` at depth z (m), as `clamgen eval --depth-noise-m`. 0: exact."""
     real_time: bool = False
     """Acting takes simulated time, as `clamgen eval --table 2 --real-time`: an act longer than
     the 50 ms control period holds the arm still a step for each whole period it took (a
@@ -192,11 +195,13 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         config.target_speed if config.target_speed == "variable" else float(config.target_speed)
     )
     num_obstacles, family = ENV_TASKS[config.env_id]
+    env_kwargs = dict(env_kwargs or {})
+    if config.depth_noise_m:
+        if not env_kwargs.get("num_views"):
+            raise ValueError("--depth-noise-m perturbs the views' depth: this policy observes none")
+        env_kwargs["depth_noise_m"] = config.depth_noise_m
     env = ReachEnv(
-        num_obstacles=num_obstacles,
-        task_family=family,
-        target_speed=speed,
-        **(env_kwargs or {}),
+        num_obstacles=num_obstacles, task_family=family, target_speed=speed, **env_kwargs
     )
     renderer = RolloutRenderer(env, config.num_views)
 
