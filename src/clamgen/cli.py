@@ -462,6 +462,11 @@ class EvalConfig:
     course planned for (`depth_planner.DepthShieldPlanner`, beyond the paper; a static target is
     planned for the same either way). 0: plan to where the target is. Default: 0.02 for the
     `depth-rrt-*` baselines and --depth-hybrid (chosen on validation tasks), else 0."""
+    depth_noise_model_m: float = 0.0
+    """With a depth wrapper (or a `depth-rrt-*` baseline): its map is told the depth cameras'
+    noise model, sd this times z**2 at depth z (m; as --depth-noise-m), and takes a point
+    within 3 sds along its ray of the arm, the table or the target for it
+    (`depth_shield.DepthOccupancy`, beyond the paper). 0: exact depth assumed."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
     joint command, then the policy again, every step through the shield, which stops an escape
@@ -626,15 +631,18 @@ def _check_depth_request(config) -> None:
     options, or for a `depth-rrt-*` baseline with any depth option but --depth-plan-checks
     and --depth-track-m (it has the others' setting already)."""
     if str(config.policy) in DEPTH_RRT_BASELINES:
-        others = dataclasses.replace(config, depth_plan_checks=0, depth_track_m=None)
+        others = dataclasses.replace(
+            config, depth_plan_checks=0, depth_track_m=None, depth_noise_model_m=0.0
+        )
         if config.depth_hybrid or _depth_options_given(others) or config.depth_views:
             raise SystemExit(
                 f"--policy {config.policy} plans on the depth map of its own views through the "
-                "hybrid's shield already: drop the --depth-* options (but --depth-plan-checks "
-                "and --depth-track-m)"
+                "hybrid's shield already: drop the --depth-* options (but --depth-plan-checks, "
+                "--depth-track-m and --depth-noise-model-m)"
             )
         _plan_checks(config)
         _track_m(config, 0.0)
+        _noise_model_m(config)
         return
     wanted = _wants_depth_shield(config)
     if config.depth_views and not wanted:
@@ -654,6 +662,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_fine_size != 0
         or config.depth_plan_checks != 0
         or config.depth_track_m is not None
+        or config.depth_noise_model_m != 0
         or config.depth_escapes
         or config.depth_escapes_before_plan != ESCAPES_BEFORE_PLAN
     )
@@ -672,12 +681,15 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
 
     from clamgen.experiments.depth_planner import ESCAPES, ESCAPES_PLANNER, HYBRID
 
-    # A preset's planner takes --depth-plan-checks and --depth-track-m; the rest it sets.
-    planning = dataclasses.replace(config, depth_plan_checks=0, depth_track_m=None)
+    # A preset takes --depth-plan-checks and --depth-track-m for its planner, and
+    # --depth-noise-model-m; the rest it sets.
+    planning = dataclasses.replace(
+        config, depth_plan_checks=0, depth_track_m=None, depth_noise_model_m=0.0
+    )
     if config.depth_hybrid and _depth_options_given(planning):
         raise SystemExit(
             "--depth-hybrid sets the depth options itself: drop the others (but "
-            "--depth-plan-checks and --depth-track-m)"
+            "--depth-plan-checks, --depth-track-m and --depth-noise-model-m)"
         )
     # --depth-escapes without a shield's options (with --depth-planner or not): the escape
     # rows' shield.
@@ -701,7 +713,7 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
     guard = None if preset else _depth_guard(config)
     env_kwargs = depth_views_env(env_kwargs, config.depth_views)
     views = env_kwargs["num_views"]
-    guard = guard or _preset_planning(preset[min(views, max(preset))], config)
+    guard = guard or _preset_options(preset[min(views, max(preset))], config)
     if guard.planner and find_spec("ompl") is None:
         raise SystemExit("--depth-planner needs OMPL 2 (`pip install ompl`, or clamgen[planning])")
     try:
@@ -787,6 +799,7 @@ def _depth_guard(config):
         config.depth_escapes,
         escapes_first,
         track_m=track_m,
+        noise_m=_noise_model_m(config),
     )
 
 
@@ -835,9 +848,10 @@ def _with_action_scale(policy, source: str, scale: float):
 
 
 def _with_depth_rrt_options(policy, source: str, env_kwargs: dict, config):
-    """A `depth-rrt-*` baseline with --depth-plan-checks N or --depth-track-m M: built again
-    with plans of N validity checks (the same plans on any machine) or tracking a moving
-    target at M, its source saying so (`_depth_rrt_options`); anything else unchanged."""
+    """A `depth-rrt-*` baseline with --depth-plan-checks N, --depth-track-m M or
+    --depth-noise-model-m K: built again with plans of N validity checks (the same plans on
+    any machine), tracking a moving target at M, or its map told the noise model K, its source
+    saying so (`_depth_rrt_options`); anything else unchanged."""
     name = str(config.policy)
     changes = _depth_rrt_options(config)
     if name not in DEPTH_RRT_BASELINES or not changes:
@@ -845,7 +859,8 @@ def _with_depth_rrt_options(policy, source: str, env_kwargs: dict, config):
     from clamgen.experiments.depth_planner import TRACK_M, depth_rrt
 
     views, checks = DEPTH_RRT_BASELINES[name], config.depth_plan_checks
-    policy, env_kwargs = depth_rrt(views, checks, _track_m(config, TRACK_M))
+    track_m, noise_m = _track_m(config, TRACK_M), _noise_model_m(config)
+    policy, env_kwargs = depth_rrt(views, checks, track_m, noise_m)
     return policy, source + changes, env_kwargs
 
 
@@ -858,6 +873,8 @@ def _depth_rrt_options(config) -> str:
         text += ", planning to where the target is"
     elif track_m is not None:
         text += f", replanning {track_m:g} m off a moving target's course"
+    if config.depth_noise_model_m:
+        text += f", depth noise model sd {config.depth_noise_model_m:g}*z^2 m"
     return text
 
 
@@ -1020,17 +1037,30 @@ def _render_config(argv: list[str]):
     )
 
 
-def _preset_planning(guard, config):
+def _preset_options(guard, config):
     """A preset `DepthGuard` (`--depth-hybrid`, `--depth-escapes [--depth-planner]`) with
-    `config`'s --depth-plan-checks and --depth-track-m for its planner; SystemExit where it has
-    none."""
+    `config`'s --depth-noise-model-m, and --depth-plan-checks and --depth-track-m for its
+    planner; SystemExit where it has none."""
     checks, track_m = _plan_checks(config), _track_m(config, guard.track_m)
     if (checks or config.depth_track_m is not None) and not guard.planner:
         raise SystemExit(
             "--depth-plan-checks and --depth-track-m need a planner (--depth-planner): "
             "--depth-escapes alone never plans"
         )
-    return dataclasses.replace(guard, plan_checks=checks or guard.plan_checks, track_m=track_m)
+    return dataclasses.replace(
+        guard,
+        plan_checks=checks or guard.plan_checks,
+        track_m=track_m,
+        noise_m=_noise_model_m(config),
+    )
+
+
+def _noise_model_m(config) -> float:
+    """`config`'s --depth-noise-model-m; SystemExit when it is negative or not finite."""
+    noise_m = config.depth_noise_model_m
+    if not 0 <= noise_m < float("inf"):
+        raise SystemExit(f"--depth-noise-model-m must be a number >= 0, got {noise_m}")
+    return noise_m
 
 
 def _table2_row_name(config: EvalConfig, name: str) -> str:

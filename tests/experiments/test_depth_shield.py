@@ -109,6 +109,43 @@ def test_pixels_whose_depth_shrank_add_no_obstacle_surface(blocked_env):
     assert steps > 20
 
 
+def test_a_map_told_the_depth_noise_keeps_the_obstacles_and_not_the_noise_around_the_arm():
+    from clamgen.experiments.depth_kernels import within_capsules
+
+    noise_m = 0.003  # sd 8 mm at the cameras' 1.6 m: about a depth level
+    env = ReachEnv(
+        num_obstacles=2,
+        task_family="blocked",
+        obs_mode="both",
+        num_views=VIEWS,
+        image_size=SIZE,
+        depth_noise_m=noise_m,
+    )
+    phantoms_near_arm = {}
+    for model in (0.0, noise_m):
+        occupancy = DepthOccupancy(VIEWS, SIZE, SIZE, noise_m=model)
+        near_arm = 0
+        for seed in TEST_SEEDS.seeds(3):
+            obs, _ = env.reset(seed=int(seed))
+            occupancy.reset()
+            for _ in range(5):  # the arm holds still: five frames of fresh noise
+                points = occupancy.update(obs)
+                obs = env.step(np.zeros(6, np.float32))[0]
+            distance = surface_distance(points, env.unwrapped.scene.obstacles)
+            # Every obstacle is still seen, from many points.
+            assert ((distance < 0.03).sum(axis=0) >= 10).all()
+            off = distance.min(axis=1) > 0.03
+            starts, ends = occupancy.arm.segments(obs["observation"][:6].astype(np.float64))
+            reach = occupancy.arm.radii + 0.03
+            near_arm += int((off & within_capsules(points, starts, ends, reach)).sum())
+        phantoms_near_arm[model] = near_arm
+    # Untold, the noise on the arm's pixels leaves surface around it that holds it still.
+    assert phantoms_near_arm[0.0] >= 10 and phantoms_near_arm[noise_m] <= 1, phantoms_near_arm
+    with pytest.raises(ValueError, match="noise_m"):
+        DepthOccupancy(VIEWS, SIZE, SIZE, noise_m=-1.0)
+    env.close()
+
+
 def test_bridged_pixels_add_surface_on_the_obstacles(blocked_env):
     """Joining neighbouring pixels' obstacle points (bridge_m) keeps more of the obstacles'
     surface, and all of it on them."""
@@ -440,6 +477,12 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
     assert row["name"].endswith("no learned policy (ours), depth noise sd 0.002*z^2 m")
     assert row["depth_noise_m"] == 0.002
+    told = ["--depth-noise-model-m", "0.002", "--depth-noise-m", "0.002", "--num-tasks", "1"]
+    main(["eval", *args, *told, "--out", str(out), "--overwrite"])
+    row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
+    assert row["name"].endswith(
+        "(ours), depth noise model sd 0.002*z^2 m, depth noise sd 0.002*z^2 m"
+    )
 
 
 def test_arm_shadow_hides_what_is_behind_the_hand_until_a_camera_sees_it():
@@ -713,14 +756,22 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
 def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
     env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
     planning = ["--depth-plan-checks", "5000", "--depth-track-m", "0"]
+    noise = ["--depth-noise-model-m", "0.003"]
     for preset, guard in (
         (["--depth-hybrid"], HYBRID[views]),
         (["--depth-escapes", "--depth-planner"], ESCAPES_PLANNER[views]),
     ):
-        config = tyro.cli(EvalConfig, args=["--table", "2", *preset, *planning])
+        config = tyro.cli(EvalConfig, args=["--table", "2", *preset, *planning, *noise])
         shielded, source, _ = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
-        assert source == replace(guard, plan_checks=5000, track_m=0.0).describe()
+        told = replace(guard, plan_checks=5000, track_m=0.0, noise_m=0.003)
+        assert source == told.describe() and "depth noise model sd 0.003*z^2 m" in source
         assert (shielded.rrt.max_checks, shielded.track_m) == (5000, 0.0)
+        assert shielded.occupancy.noise_m == 0.003
+        assert _depth_guard(tyro.cli(EvalConfig, args=["--table", "2", *told.flags()])) == told
+    # The escapes alone plan nothing, but their map takes the noise model.
+    config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-escapes", *noise])
+    shielded = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)[0]
+    assert shielded.occupancy.noise_m == 0.003
     # Session 43's hybrid (planning to where the target is) by name, and the default kept.
     config = tyro.cli(EvalConfig, args=["--table", "2", "--depth-hybrid", "--depth-track-m", "0"])
     assert (
@@ -735,6 +786,7 @@ def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
         (["--depth-escapes", "--depth-plan-checks", "100"], "need a planner"),
         (["--depth-hybrid", "--depth-track-m", "-1"], "must be a number >= 0"),
         (["--depth-hybrid", "--depth-plan-checks", "-1"], "must be >= 0"),
+        (["--depth-hybrid", "--depth-noise-model-m", "-1"], "must be a number >= 0"),
         (["--depth-hybrid", "--depth-fine-size", "64"], "--depth-hybrid sets the depth options"),
     ):
         config = tyro.cli(EvalConfig, args=["--table", "2", *args])

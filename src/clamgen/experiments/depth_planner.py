@@ -353,7 +353,8 @@ class DepthGuard:
     checks), instead of by a plan or, with `planner` too, before one: the planner plans only
     once the policy has begun `escapes_before_plan` escapes in the episode, with `plan_first`
     planning at the first step of each episode too, with `track_m` > 0 planning to meet a
-    moving target (`DepthShieldPlanner`). The fields but `plan_first` are `clamgen
+    moving target (`DepthShieldPlanner`), with `noise_m` > 0 told the depth cameras' noise
+    model (`depth_shield.DepthOccupancy`). The fields but `plan_first` are `clamgen
     eval|render`'s `--depth-*` options (`plan_first`: the `depth-rrt-*` baselines,
     `depth_rrt`)."""
 
@@ -368,6 +369,7 @@ class DepthGuard:
     escapes_before_plan: int = ESCAPES_BEFORE_PLAN
     plan_first: bool = False
     track_m: float = 0.0
+    noise_m: float = 0.0
 
     def env_kwargs(self) -> dict[str, int]:
         """What the env must add for this guard (`ReachEnv(fine_depth_size=...)`)."""
@@ -395,6 +397,7 @@ class DepthGuard:
             shadow_behind_surfaces=self.shadow_behind_surfaces,
             bridge_m=self.bridge_m,
             fine_depth_size=self.fine_depth_size,
+            noise_m=self.noise_m,
         )
 
     def around(self, policy, env_kwargs: dict) -> tuple[DepthShield, dict]:
@@ -426,6 +429,7 @@ class DepthGuard:
         flags += ["--depth-fine-size", str(self.fine_depth_size)] if self.fine_depth_size else []
         flags += ["--depth-plan-checks", str(self.plan_checks)] if self.plan_checks else []
         flags += ["--depth-track-m", str(self.track_m)] if self.planner and self.track_m else []
+        flags += ["--depth-noise-model-m", str(self.noise_m)] if self.noise_m else []
         flags += ["--depth-escapes"] if self.escapes else []
         if self.escapes and self.planner and self.escapes_before_plan != ESCAPES_BEFORE_PLAN:
             flags += ["--depth-escapes-before-plan", str(self.escapes_before_plan)]
@@ -439,6 +443,7 @@ class DepthGuard:
             text += f", {behind}'s shadow within {self.shadow_m} m"
         text += f", pixels bridged up to {self.bridge_m} m" if self.bridge_m else ""
         text += f", depth seen at {self.fine_depth_size} px" if self.fine_depth_size else ""
+        text += f", depth noise model sd {self.noise_m:g}*z^2 m" if self.noise_m else ""
         checks = f" ({self.plan_checks} checks a plan)" if self.plan_checks else ""
         when = "from the first step and when stuck" if self.plan_first else "when stuck"
         when += f", meeting a moving target (replanning {self.track_m} m off)" * bool(self.track_m)
@@ -510,7 +515,7 @@ def rendered_views_env(num_views: int) -> dict:
 
 
 def depth_rrt(
-    num_views: int, plan_checks: int = 0, track_m: float = TRACK_M
+    num_views: int, plan_checks: int = 0, track_m: float = TRACK_M, noise_m: float = 0.0
 ) -> tuple[DepthShieldPlanner, dict]:
     """RRT on the depth map of `num_views` views, with no learned policy (a baseline beyond the
     paper, the classical counterpart of a vision policy on the same sensors): the hybrid's
@@ -520,8 +525,9 @@ def depth_rrt(
     `PLAN_TIME_S`, or with `plan_checks` > 0 that many validity checks, the same plans on any
     machine); while it has no path the arm holds still. It plans to meet a moving target
     (`DepthShieldPlanner`'s `track_m`; 0: to where the target is, session 43's baseline; a
-    static target gets the same plans either way). Returns the policy and the env options it
-    observes with (the views and the guard's depth cameras)."""
+    static target gets the same plans either way); `noise_m` > 0: its map told the depth
+    cameras' noise model (`depth_shield.DepthOccupancy`). Returns the policy and the env
+    options it observes with (the views and the guard's depth cameras)."""
     from clamgen.policy import HoldStill
 
     if num_views not in (1, 2, 3, 4):
@@ -531,5 +537,6 @@ def depth_rrt(
         plan_first=True,
         plan_checks=plan_checks,
         track_m=track_m,
+        noise_m=noise_m,
     )
     return guard.around(HoldStill(), rendered_views_env(num_views))

@@ -67,6 +67,9 @@ FAR_CLIP_M = C.DEPTH_RANGE_M[1] - 0.05
 """Depth at or beyond the stored range's far end is background."""
 MARGIN_M = 0.01
 """Clearance the depth shield keeps: about a voxel (chosen on validation tasks)."""
+NOISE_SIGMAS = 3.0
+"""With a depth noise model (`DepthOccupancy(noise_m=...)`): a point is taken for arm, table or
+target where moving it this many standard deviations along its ray would make it one."""
 ARM_REACH_M = 1.2
 """Farther than any point of the arm gets from the base (UR5 reach 0.85 m, and the gripper)."""
 SHADOW_GEOMS = ("wrist_3", "gripper", "suction_cup")
@@ -239,7 +242,10 @@ class DepthOccupancy:
     this far apart are joined by surface (a side seen at a grazing angle leaves its pixels'
     points centimetres apart; farther apart, the neighbour is an edge in front of something
     behind). Measured on 1-view validation tasks with 0.05 m: no change in collisions
-    (`results/stage2/shield/README.md`). 0 turns either off.
+    (`results/stage2/shield/README.md`). 0 turns either off. `noise_m` > 0: the depth
+    camera's noise model, sd `noise_m * z**2` along each ray at depth z (m; `ReachEnv`'s
+    `depth_noise_m`): a point within `NOISE_SIGMAS` of them along its ray of the arm, the table
+    or the target is taken for it (the filters are set for exact depth otherwise).
     """
 
     def __init__(
@@ -250,12 +256,16 @@ class DepthOccupancy:
         arm: ArmCapsules | None = None,
         extrude_m: float = 0.0,
         bridge_m: float = 0.0,
+        noise_m: float = 0.0,
     ):
         if not 0 <= bridge_m < float("inf"):
             raise ValueError(f"bridge_m must be a number >= 0, got {bridge_m}")
+        if not 0 <= noise_m < float("inf"):
+            raise ValueError(f"noise_m must be a number >= 0, got {noise_m}")
         self.arm = arm if arm is not None else ArmCapsules()
         self.extrude_m = extrude_m
         self.bridge_m = bridge_m
+        self.noise_m = noise_m
         scene = self.arm.scene
         mujoco.mj_kinematics(scene.model, scene.data)
         rays = []
@@ -272,6 +282,9 @@ class DepthOccupancy:
         self.directions = self.rays / np.linalg.norm(self.rays, axis=1, keepdims=True)
         origins = scene.data.cam_xpos[scene.camera_ids[:num_views]].astype(np.float32)
         self.origins = np.repeat(origins, height * width, axis=0)
+        # Per view, the optical axis (the camera looks along its -z): a point's depth z.
+        axes = -scene.data.cam_xmat[scene.camera_ids[:num_views]].reshape(-1, 3, 3)[:, :, 2]
+        self._view_origins, self._view_axes = origins.astype(np.float64), axes
         self.shape = (num_views, height, width)
         self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
         self._grid = np.zeros(int(np.prod(self._dims)), bool)
@@ -347,10 +360,12 @@ class DepthOccupancy:
         points, *directions, pixels = self.lift(
             images, changed_only=True, with_rays=self.extrude_m > 0, with_pixels=True
         )
+        if self.noise_m > 0:
+            points, pixels, directions = self._off_table(points, pixels, directions)
         index, cells, new = surface_candidates(
             points,
             np.asarray(goal, np.float64),
-            TARGET_REACH_M**2,
+            self._target_reach(np.asarray(goal, np.float64)) ** 2,
             PEDESTAL_RADIUS_M**2,
             PEDESTAL_TOP_M,
             GRID_LOW_M,
@@ -362,7 +377,7 @@ class DepthOccupancy:
             self._pixel_points[pixels[index[~new]]] = points[index[~new]]
         index, cells = index[new], cells[new]
         if len(index):
-            off_arm = self._off_arm(points[index], joints)
+            off_arm = self._off_arm(points[index], joints, pixels[index])
             index, cells = index[off_arm], cells[off_arm]
         if len(index):
             mine = points[index]
@@ -405,11 +420,52 @@ class DepthOccupancy:
         voxels, inside = self.voxels(between)
         return voxels[inside] @ self._strides
 
-    def _off_arm(self, points: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    def _off_arm(
+        self, points: np.ndarray, joints: np.ndarray, pixels: np.ndarray | None = None
+    ) -> np.ndarray:
         """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (the test
-        runs on every pixel the arm's motion changed: compiled, `within_capsules`)."""
+        runs on every pixel the arm's motion changed: compiled, `within_capsules`); with a
+        noise model, at every point up to `NOISE_SIGMAS` sds along their rays (`pixels`)."""
         starts, ends = self.arm.segments(joints)
-        return ~within_capsules(points, starts, ends, self.arm.radii + ARM_FILTER_M)
+        reach = self.arm.radii + ARM_FILTER_M
+        off = ~within_capsules(points, starts, ends, reach)
+        if self.noise_m <= 0 or pixels is None or not off.any():
+            return off
+        # Samples along each ray, at most `ARM_FILTER_M` apart: the filter's reach around
+        # them covers the segment to within a few millimetres.
+        shift = NOISE_SIGMAS * self._sigma(points, pixels)[:, None] * self.rays[pixels]  # P, 3
+        longest = float(np.sqrt((shift * shift).sum(axis=1)).max())
+        near = off & within_capsules(points, starts, ends, reach + longest)
+        samples = max(2, int(np.ceil(2 * longest / ARM_FILTER_M)) + 1)
+        for t in np.linspace(-1.0, 1.0, samples):
+            if not near.any():
+                break
+            hit = within_capsules(points[near] + t * shift[near], starts, ends, reach)
+            which = np.flatnonzero(near)[hit]
+            off[which], near[which] = False, False
+        return off
+
+    def _sigma(self, points: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+        """The noise model's sd (m per metre along the ray's depth offset) of `points` seen
+        at `pixels`: `noise_m` times their depth squared."""
+        view = pixels // (self.shape[1] * self.shape[2])
+        depth = ((points - self._view_origins[view]) * self._view_axes[view]).sum(axis=1)
+        return self.noise_m * depth * depth
+
+    def _off_table(self, points: np.ndarray, pixels: np.ndarray, directions: list):
+        """`points`, `pixels` and `directions` but those that `NOISE_SIGMAS` sds along their
+        rays would put on the table (less than `ABOVE_TABLE_M` above its top)."""
+        drop = NOISE_SIGMAS * self._sigma(points, pixels) * np.abs(self.rays[pixels, 2])
+        keep = points[:, 2] - drop > C.TABLE_TOP_Z_M + ABOVE_TABLE_M
+        return points[keep], pixels[keep], [d[keep] for d in directions]
+
+    def _target_reach(self, goal: np.ndarray) -> float:
+        """How near the target a point is taken for target: `TARGET_REACH_M`, with a noise
+        model `NOISE_SIGMAS` sds at the farthest view's depth of the target farther."""
+        if self.noise_m <= 0:
+            return TARGET_REACH_M
+        depth = float(((goal - self._view_origins) * self._view_axes).sum(axis=1).max())
+        return TARGET_REACH_M + NOISE_SIGMAS * self.noise_m * depth * depth
 
     def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
         """Cells up to `extrude_m` behind surface points along their viewing rays (an obstacle
@@ -703,7 +759,8 @@ class DepthShield:
     the hidden side of each seen surface is taken as filled this deep (`DepthOccupancy`);
     `shadow`: the hand keeps out of the space the arm has hidden since the episode began
     (`ArmShadow`); `bridge_m`: neighbouring pixels' obstacle points up to this far apart are
-    joined by surface (`DepthOccupancy`). Counts `num_shielded` of `num_steps`.
+    joined by surface (`DepthOccupancy`); `noise_m`: the depth camera's noise model
+    (`DepthOccupancy`). Counts `num_shielded` of `num_steps`.
     """
 
     def __init__(
@@ -719,6 +776,7 @@ class DepthShield:
         shadow_behind_surfaces: bool = False,
         bridge_m: float = 0.0,
         fine_depth_size: int = 0,
+        noise_m: float = 0.0,
     ) -> None:
         from clamgen.experiments.shield import perturbations
 
@@ -731,7 +789,7 @@ class DepthShield:
         self.depth_key = "fine_depth" if fine_depth_size else "images"
         size = fine_depth_size or image_size
         arm = ArmCapsules()
-        self.occupancy = DepthOccupancy(num_views, size, size, arm, extrude_m, bridge_m)
+        self.occupancy = DepthOccupancy(num_views, size, size, arm, extrude_m, bridge_m, noise_m)
         self.shadow = None
         if shadow_m is not None:
             self.shadow = ArmShadow(self.occupancy, shadow_m, shadow_behind_surfaces)

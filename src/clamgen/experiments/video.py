@@ -97,6 +97,9 @@ class RenderConfig:
     """With --depth-planner or --depth-hybrid (or a `depth-rrt-*` baseline): plan to meet a moving
     target, planning again when it is this far (m) off its course, as `clamgen eval --depth-track-m`
     (0: to where it is)."""
+    depth_noise_model_m: float = 0.0
+    """With a depth wrapper (or a `depth-rrt-*` baseline): its map told the depth cameras'
+    noise model, as `clamgen eval --depth-noise-model-m`. 0: exact depth assumed."""
     depth_escapes: bool = False
     """Random escapes from stalls inside the shield, as `clamgen eval --depth-escapes` (alone:
     the escape rows' setting; with --depth-planner, before its plans)."""
