@@ -51,6 +51,27 @@ def test_within_capsules_matches_distances(seed):
 
 
 @pytest.mark.parametrize("seed", range(5))
+def test_rays_within_capsules_match_densely_sampled_segments(seed):
+    rng = np.random.default_rng(seed)
+    starts, ends = _segments(rng, 8)
+    reach = rng.uniform(0.02, 0.1, 8)
+    points = rng.uniform(-0.7, 0.7, (2000, 3))
+    shifts = rng.normal(0.0, 0.05, (2000, 3))
+    shifts[:100] = 0.0  # no uncertainty: the points' own test
+    # Dense samples along each segment; a margin either side of the reach for what they miss.
+    along = np.linspace(-1.0, 1.0, 401)
+    gaps = np.stack([_segment_distance(points + t * shifts, starts, ends) - reach for t in along])
+    gap = gaps.min(axis=0)  # P, G: the nearest sample's gap to each capsule
+    step = 2.0 * np.linalg.norm(shifts, axis=1) / (len(along) - 1)
+    decided = (np.abs(gap).min(axis=1) > step + 1e-9) | (gap <= 0).any(axis=1)
+    got = K.rays_within_capsules(points, shifts, starts, ends, reach)
+    expected = (gap <= 0).any(axis=1)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(got[decided], expected[decided])
+    np.testing.assert_array_equal(got[:100], K.within_capsules(points[:100], starts, ends, reach))
+
+
+@pytest.mark.parametrize("seed", range(5))
 def test_capsule_clearances_match_distances(seed):
     rng = np.random.default_rng(seed)
     configs, geoms, cap = 6, 5, 0.08

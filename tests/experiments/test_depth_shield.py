@@ -856,6 +856,7 @@ from clamgen.experiments.config import TEST_SEEDS
 from clamgen.experiments.depth_planner import ESCAPES, HYBRID
 from clamgen.experiments.depth_shield import warm_up
 from clamgen.experiments.evaluate import evaluate
+from dataclasses import replace
 
 
 def signatures():
@@ -865,9 +866,10 @@ def signatures():
 
 warm_up()
 warm = signatures()
-for views, guard in ((1, ESCAPES[1]), (3, HYBRID[3])):
+told = replace(HYBRID[2], noise_m=0.003)  # a map told the depth noise
+for views, guard in ((1, ESCAPES[1]), (3, HYBRID[3]), (2, told)):
     env = ReachEnv(num_obstacles=2, task_family="blocked", num_views=views, image_size=64,
-                   obs_mode="both", **guard.env_kwargs())
+                   obs_mode="both", depth_noise_m=guard.noise_m, **guard.env_kwargs())
     evaluate(env, guard.wrap(IKInterpolationPolicy(), views, 64), TEST_SEEDS.seeds(2))
     env.close()
 added = {k.__name__: s - warm[k] for k, s in signatures().items() if s - warm[k]}

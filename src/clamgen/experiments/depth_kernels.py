@@ -66,6 +66,70 @@ def within_capsules(
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _segments_distance2(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -> float:
+    """Squared distance between the segments from `p1` along `d1` and from `p2` along `d2`
+    (3,): the closest points' parameters clamped to both segments (Ericson, Real-Time Collision
+    Detection, 5.1.9)."""
+    r0, r1, r2 = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+    a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]
+    e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]
+    f = d2[0] * r0 + d2[1] * r1 + d2[2] * r2
+    s = t = 0.0
+    if a <= 1e-18 and e > 1e-18:
+        t = min(max(f / e, 0.0), 1.0)
+    elif a > 1e-18:
+        c = d1[0] * r0 + d1[1] * r1 + d1[2] * r2
+        if e <= 1e-18:
+            s = min(max(-c / a, 0.0), 1.0)
+        else:
+            b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+            denom = a * e - b * b
+            if denom > 0.0:
+                s = min(max((b * f - c * e) / denom, 0.0), 1.0)
+            t = (b * s + f) / e
+            if t < 0.0:
+                t, s = 0.0, min(max(-c / a, 0.0), 1.0)
+            elif t > 1.0:
+                t, s = 1.0, min(max((b - c) / a, 0.0), 1.0)
+    x = r0 + s * d1[0] - t * d2[0]
+    y = r1 + s * d1[1] - t * d2[1]
+    z = r2 + s * d1[2] - t * d2[2]
+    return x * x + y * y + z * z
+
+
+@njit(cache=True, nogil=True)
+def rays_within_capsules(
+    points: np.ndarray, shifts: np.ndarray, starts: np.ndarray, ends: np.ndarray, reach: np.ndarray
+) -> np.ndarray:
+    """Whether some point of each segment from `points[i] - shifts[i]` to `points[i] +
+    shifts[i]` (P, 3) lies within `reach[g]` of some segment g from `starts[g]` to `ends[g]`
+    (G, 3): (P,) bool (a noisy depth pixel's point anywhere along its ray's uncertainty)."""
+    axes = ends - starts
+    low = np.minimum(starts, ends) - reach.reshape(-1, 1)
+    high = np.maximum(starts, ends) + reach.reshape(-1, 1)
+    out = np.zeros(points.shape[0], np.bool_)
+    start = np.empty(3)
+    along = np.empty(3)
+    for i in range(points.shape[0]):
+        for k in range(3):
+            start[k] = points[i, k] - shifts[i, k]
+            along[k] = 2.0 * shifts[i, k]
+        for g in range(starts.shape[0]):
+            apart = False
+            for k in range(3):  # the segments' boxes apart: too far
+                lo, hi = min(start[k], start[k] + along[k]), max(start[k], start[k] + along[k])
+                if hi < low[g, k] or lo > high[g, k]:
+                    apart = True
+                    break
+            if apart:
+                continue
+            if _segments_distance2(start, along, starts[g], axes[g]) <= reach[g] ** 2:
+                out[i] = True
+                break
+    return out
+
+
 @njit(cache=True, nogil=True)
 def capsule_clearances(
     starts: np.ndarray, ends: np.ndarray, radii: np.ndarray, points: np.ndarray, cap: float

@@ -30,6 +30,7 @@ from clamgen.experiments.depth_kernels import (
     hidden_configurations,
     hidden_points,
     lift_pixels,
+    rays_within_capsules,
     surface_candidates,
     within_capsules,
 )
@@ -116,6 +117,7 @@ def warm_up() -> None:
     capsule_clearances(axes[:, :, 0], axes[:, :, 1], np.zeros(2), nothing, 0.0)
     capsule_clearances(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.zeros(2), nothing, 0.0)
     within_capsules(nothing, box, box, np.zeros(1))
+    rays_within_capsules(nothing, nothing, box, box, np.zeros(1))  # with a noise model
     frames = _frames(ur5.HOME_JOINTS)
     flat = np.zeros((1, 3), np.float32)
     lift_pixels(
@@ -428,22 +430,10 @@ class DepthOccupancy:
         noise model, at every point up to `NOISE_SIGMAS` sds along their rays (`pixels`)."""
         starts, ends = self.arm.segments(joints)
         reach = self.arm.radii + ARM_FILTER_M
-        off = ~within_capsules(points, starts, ends, reach)
-        if self.noise_m <= 0 or pixels is None or not off.any():
-            return off
-        # Samples along each ray, at most `ARM_FILTER_M` apart: the filter's reach around
-        # them covers the segment to within a few millimetres.
-        shift = NOISE_SIGMAS * self._sigma(points, pixels)[:, None] * self.rays[pixels]  # P, 3
-        longest = float(np.sqrt((shift * shift).sum(axis=1)).max())
-        near = off & within_capsules(points, starts, ends, reach + longest)
-        samples = max(2, int(np.ceil(2 * longest / ARM_FILTER_M)) + 1)
-        for t in np.linspace(-1.0, 1.0, samples):
-            if not near.any():
-                break
-            hit = within_capsules(points[near] + t * shift[near], starts, ends, reach)
-            which = np.flatnonzero(near)[hit]
-            off[which], near[which] = False, False
-        return off
+        if self.noise_m <= 0 or pixels is None:
+            return ~within_capsules(points, starts, ends, reach)
+        shifts = NOISE_SIGMAS * self._sigma(points, pixels)[:, None] * self.rays[pixels]  # P, 3
+        return ~rays_within_capsules(points, shifts, starts, ends, reach)
 
     def _sigma(self, points: np.ndarray, pixels: np.ndarray) -> np.ndarray:
         """The noise model's sd (m per metre along the ray's depth offset) of `points` seen
