@@ -436,8 +436,9 @@ class DepthOccupancy:
         return ~rays_within_capsules(points, shifts, starts, ends, reach)
 
     def _sigma(self, points: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-        """The noise model's sd (m per metre along the ray's depth offset) of `points` seen
-        at `pixels`: `noise_m` times their depth squared."""
+        """The noise model's sd of the depth (m) of `points` seen at `pixels`: `noise_m`
+        times their depth squared (a depth error d moves a point by d times its pixel's
+        `rays`)."""
         view = pixels // (self.shape[1] * self.shape[2])
         depth = ((points - self._view_origins[view]) * self._view_axes[view]).sum(axis=1)
         return self.noise_m * depth * depth
