@@ -121,3 +121,16 @@ def test_render_in_real_time_films_the_steps_held_while_acting(tmp_path):
     assert plain["episodes"][0]["steps"] == episode["steps"] - episode["held_steps"]
     with pytest.raises(ValueError, match="real-time needs a CLAMGen env"):
         render_env_rollouts(replace(config, real_time=True), _SlowFirstIK(), "ik", "Pendulum-v1")
+
+
+def test_render_with_noisy_depth_says_so_and_needs_views(tmp_path):
+    config = RenderConfig(
+        policy="ik", env_id=ENV_IDS[0], num_episodes=1, num_views=1, depth_noise_m=0.003
+    )
+    views = {"num_views": 1, "obs_mode": "both", "image_size": 32}
+    summary = render_rollouts(
+        replace(config, out=tmp_path / "noisy"), IKInterpolationPolicy(), "ik", views
+    )
+    assert summary["depth_noise_m"] == 0.003 and summary["episodes"][0]["success"]
+    with pytest.raises(ValueError, match="perturbs the views' depth"):
+        render_rollouts(replace(config, out=tmp_path / "blind"), IKInterpolationPolicy(), "ik")

@@ -227,6 +227,8 @@ def render_rollouts(config: RenderConfig, policy, label: str, env_kwargs=None) -
         renderer.close()
         env.close()
     summary = {"policy": label, "env_id": config.env_id, "target_speed": speed, **summary}
+    if config.depth_noise_m:
+        summary["depth_noise_m"] = config.depth_noise_m
     if config.real_time:
         from clamgen.experiments.machine import describe
 
