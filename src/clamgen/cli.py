@@ -423,8 +423,9 @@ class EvalConfig:
     keeping the hand out of unseen space within 5 cm behind seen surfaces, the planner meeting a
     moving target (`clamgen.experiments.depth_planner.HYBRID`, beyond the paper; the settings chosen
     on validation tasks). Not with the other --depth-* options but --depth-plan-checks and
-    --depth-track-m, which set its planner's. From one view --depth-escapes --depth-planner does
-    better on the blocked tasks (`results/stage2/ensemble/aims.md`)."""
+    --depth-track-m, which set its planner's, and --depth-noise-model-m. From one view
+    --depth-escapes --depth-planner does better on the blocked tasks
+    (`results/stage2/ensemble/aims.md`)."""
     depth_shield_m: float | None = None
     """A vision policy acts through the collision shield on its own depth images, keeping this
     clearance (m; 0.01 was chosen on validation tasks) from the obstacle surface it has seen
@@ -778,6 +779,11 @@ def _depth_guard(config):
             raise SystemExit("--depth-bridge-m needs --depth-shield-m (the map it adds to)")
         if config.depth_fine_size != 0:
             raise SystemExit("--depth-fine-size needs --depth-shield-m (the shield that reads it)")
+        if config.depth_noise_model_m != 0 and not planner:
+            raise SystemExit(
+                "--depth-noise-model-m needs a depth wrapper (--depth-hybrid, --depth-escapes or "
+                "--depth-shield-m): the map it tells"
+            )
         raise SystemExit("--depth-planner needs --depth-shield-m (the margin it plans with)")
     if shadow_m is not None and not 0 < shadow_m < float("inf"):
         raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")

@@ -787,6 +787,7 @@ def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
         (["--depth-hybrid", "--depth-track-m", "-1"], "must be a number >= 0"),
         (["--depth-hybrid", "--depth-plan-checks", "-1"], "must be >= 0"),
         (["--depth-hybrid", "--depth-noise-model-m", "-1"], "must be a number >= 0"),
+        (["--depth-noise-model-m", "0.003"], "--depth-noise-model-m needs a depth wrapper"),
         (["--depth-hybrid", "--depth-fine-size", "64"], "--depth-hybrid sets the depth options"),
     ):
         config = tyro.cli(EvalConfig, args=["--table", "2", *args])
