@@ -52,15 +52,20 @@ def surface_distance(points: np.ndarray, obstacles: Obstacles) -> np.ndarray:
     return np.stack(out, 1)
 
 
-@pytest.fixture(scope="module")
-def blocked_env():
-    env = ReachEnv(
+def _blocked_env(**kwargs) -> ReachEnv:
+    return ReachEnv(
         num_obstacles=2,
         task_family="blocked",
         obs_mode="both",
         num_views=VIEWS,
         image_size=SIZE,
+        **kwargs,
     )
+
+
+@pytest.fixture(scope="module")
+def blocked_env():
+    env = _blocked_env()
     yield env
     env.close()
 
@@ -113,14 +118,7 @@ def test_a_map_told_the_depth_noise_keeps_the_obstacles_and_not_the_noise_around
     from clamgen.experiments.depth_kernels import within_capsules
 
     noise_m = 0.003  # sd 8 mm at the cameras' 1.6 m: about a depth level
-    env = ReachEnv(
-        num_obstacles=2,
-        task_family="blocked",
-        obs_mode="both",
-        num_views=VIEWS,
-        image_size=SIZE,
-        depth_noise_m=noise_m,
-    )
+    env = _blocked_env(depth_noise_m=noise_m)
     phantoms_near_arm = {}
     for model in (0.0, noise_m):
         occupancy = DepthOccupancy(VIEWS, SIZE, SIZE, noise_m=model)
