@@ -1072,7 +1072,7 @@ def _noise_model_m(config) -> float:
 def _table2_row_name(config: EvalConfig, name: str) -> str:
     """`--name`, else the policy's Table 2 row name `name` (with its depth wrapper's, if any)
     and what the options change: a depth-rrt baseline's options, a moving target, real
-    time."""
+    time, depth noise."""
     if config.name:
         return config.name
     if str(config.policy) in DEPTH_RRT_BASELINES:
