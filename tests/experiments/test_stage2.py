@@ -136,6 +136,22 @@ def test_image_residual_with_rerendered_her_trains_and_resumes(tmp_path, base_po
     assert agent.config.encoder.image_size == 24
 
 
+def test_image_residual_trains_on_noisy_depth(tmp_path, base_policy):
+    """`env.depth_noise_m`: the training and validation envs and image HER's re-rendering all
+    see the camera's noise; without views it is refused."""
+    config = image_config(tmp_path, base_policy)
+    noisy = dataclasses.replace(config, env=dataclasses.replace(config.env, depth_noise_m=0.01))
+    trainer = Stage2Trainer(noisy)
+    assert {env.depth_noise_m for env in (*trainer.envs, trainer.eval_env)} == {0.01}
+    assert trainer.pipeline.rerender.depth_noise_m == 0.01
+    trainer.run(show_progress=False)
+    assert trainer.buffer.num_episodes > trainer.progress.episodes  # re-rendered, noisy
+    with pytest.raises(ValueError, match="depth_noise_m"):
+        dataclasses.replace(config.env, num_views=0, obs_mode="joints", depth_noise_m=0.01)
+    with pytest.raises(ValueError, match="depth_noise_m"):
+        dataclasses.replace(config.env, depth_noise_m=-0.01)
+
+
 def test_stage2_config_refuses_inconsistent_settings(tmp_path, base_policy):
     config = image_config(tmp_path, base_policy)
     with pytest.raises(ValueError, match="num_views"):

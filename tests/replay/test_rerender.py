@@ -222,6 +222,39 @@ def test_worker_frames_equal_synchronous_frames(rollout, worker):
     assert worker.poll() == []
 
 
+def test_noisy_rerendering_is_seeded_and_matches_the_env_noise_model(rollout):
+    """With `depth_noise_m` (`EnvConfig.depth_noise_m`, image HER), re-rendered depth gets the
+    env's noise model; RGB stays exact; the worker and in-process rendering draw the same
+    noise for the same seed, another seed other noise."""
+    from clamgen.sim.render import uint8_to_depth
+
+    noise_m = 0.01
+    episodes = (*relabelled(rollout), rollout.episode)
+    results = {}
+    for name, seed, synchronous in (("here", 3, True), ("worker", 3, False), ("other", 4, True)):
+        with RerenderWorker(
+            NUM_VIEWS, IMAGE_SIZE, synchronous=synchronous, depth_noise_m=noise_m, seed=seed
+        ) as renderer:
+            for i, episode in enumerate(episodes):
+                renderer.submit(episode, rollout.obstacles, tag=i)
+            results[name] = [e.obs["images"] for _, e in renderer.drain(WORKER_TIMEOUT_S)]
+    with RerenderWorker(NUM_VIEWS, IMAGE_SIZE, synchronous=True) as exact:
+        for i, episode in enumerate(episodes):
+            exact.submit(episode, rollout.obstacles, tag=i)
+        clean = [e.obs["images"] for _, e in exact.drain(WORKER_TIMEOUT_S)]
+    for here, worker, other, want in zip(*results.values(), clean, strict=True):
+        np.testing.assert_array_equal(here, worker)
+        assert not np.array_equal(here[:, :, 3], other[:, :, 3])
+        np.testing.assert_array_equal(here[:, :, :3], want[:, :, :3])
+    depth = uint8_to_depth(np.concatenate(clean)[:, :, 3])
+    error = uint8_to_depth(np.concatenate(results["here"])[:, :, 3]) - depth
+    inside = (depth > C.DEPTH_RANGE_M[0] + 0.1) & (depth < C.DEPTH_RANGE_M[1] - 0.3)
+    scaled = error[inside] / (noise_m * depth[inside] ** 2)
+    assert abs(scaled.mean()) < 0.1 and 0.9 < scaled.std() < 1.3
+    with pytest.raises(ValueError, match="depth_noise_m"):
+        RerenderWorker(NUM_VIEWS, IMAGE_SIZE, synchronous=True, depth_noise_m=-1.0)
+
+
 def test_worker_reports_a_malformed_submission_and_goes_on(rollout, worker):
     episode = rollout.episode
     no_joints = dataclasses.replace(

@@ -50,7 +50,12 @@ import numpy as np
 
 from clamgen.robot import ur5
 from clamgen.sim import constants as C
-from clamgen.sim.render import MultiViewRenderer, depth_to_uint8
+from clamgen.sim.render import (
+    DEPTH_NOISE_STREAM,
+    MultiViewRenderer,
+    add_depth_noise,
+    depth_to_uint8,
+)
 from clamgen.sim.scene import Obstacles, Scene
 from clamgen.sim.state import SimState, images_from_render, render_state
 from clamgen.tasks import TASK_FAMILIES, reach
@@ -69,8 +74,6 @@ DEFAULT_IMAGE_SIZE = 128
 # num_views * image_size pixels across (4096 at 4 views, within every GL implementation's
 # framebuffer limit), and one 1024 px RGBD view is already 4 MiB per stored observation.
 MAX_IMAGE_SIZE = 1024
-DEPTH_NOISE_STREAM = 0xDE9
-"""Mixed into the reset seed for the depth noise's own random stream (`depth_noise_m`)."""
 
 
 @dataclass(frozen=True)
@@ -455,10 +458,7 @@ class ReachEnv(gym.Env):
 
     def _noisy(self, depth_m: np.ndarray) -> np.ndarray:
         """`depth_m` (V, H, W) metres with the sensor noise of `depth_noise_m` (itself at 0)."""
-        if not self.depth_noise_m:
-            return depth_m
-        noise = self._noise_rng.standard_normal(depth_m.shape, np.float32)
-        return depth_m + noise * (np.float32(self.depth_noise_m) * depth_m * depth_m)
+        return add_depth_noise(depth_m, self.depth_noise_m, self._noise_rng)
 
     def _reset_info(self) -> dict[str, Any]:
         distance = float(np.linalg.norm(self.scene.tip_position() - self.scene.target_position))

@@ -158,6 +158,12 @@ class EnvConfig:
     `STEP_PENALTY / (1 - agent.gamma)` (0.5 at gamma 0.98) from the start of training, or
     ending the episode by a collision pays better than trying. Periodic validation and every
     table are unchanged. False: the paper."""
+    depth_noise_m: float = 0.0
+    """Beyond the paper: train (and validate periodically) on noisy depth, as a real RGBD camera
+    gives it: Gaussian noise along each depth ray, sd `depth_noise_m * z**2` m at depth z
+    (`ReachEnv(depth_noise_m=...)`; about 0.0015 for a Kinect v1, 0.01 for a RealSense D435).
+    Image HER's re-rendered episodes get the same noise. The tables pick their own
+    (`clamgen eval --depth-noise-m`). 0: exact depth (the paper)."""
 
     def __post_init__(self) -> None:
         _require_int("env.num_envs", self.num_envs, 1)
@@ -171,6 +177,13 @@ class EnvConfig:
         _require_int("env.image_size", self.image_size, 8, MAX_IMAGE_SIZE)
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"env.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}")
+        noise = self.depth_noise_m
+        if not (_is_number(noise) and 0 <= noise < float("inf")):
+            raise ValueError(f"env.depth_noise_m must be a finite number >= 0, got {noise!r}")
+        if noise and self.num_views == 0:
+            raise ValueError(
+                "env.depth_noise_m perturbs the views' depth: it needs env.num_views >= 1"
+            )
         if self.zoom_views and self.num_views == 0:
             raise ValueError("env.zoom_views needs env.num_views >= 1 (a zoomed view per view)")
         if (self.num_views > 0) != (self.obs_mode != "joints"):
@@ -192,6 +205,7 @@ class EnvConfig:
             "obs_mode": self.obs_mode,
             "include_obstacle_state": self.include_obstacle_state,
             **({"zoom_views": True} if self.zoom_views else {}),
+            **({"depth_noise_m": self.depth_noise_m} if self.depth_noise_m else {}),
         }
 
 

@@ -166,6 +166,8 @@ def residual_stage(config: Stage2Config) -> Stage:
             num_views=config.env.num_views,
             image_size=config.env.image_size,
             synchronous=config.rerender_in_process,
+            depth_noise_m=config.env.depth_noise_m,
+            seed=config.loop.seed,
         )
 
     def policy_extras(agent: ResidualAgent) -> dict:

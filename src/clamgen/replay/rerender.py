@@ -33,7 +33,7 @@ import numpy as np
 from clamgen.replay.episode import DESIRED_GOAL, Episode
 from clamgen.robot import ur5
 from clamgen.sim import constants as C
-from clamgen.sim.render import MultiViewRenderer
+from clamgen.sim.render import DEPTH_NOISE_STREAM, MultiViewRenderer, add_depth_noise
 from clamgen.sim.scene import Obstacles, Scene
 from clamgen.sim.state import SimState, images_from_render
 
@@ -99,6 +99,8 @@ def rerender_images(
     joints: np.ndarray,
     goals: np.ndarray,
     obstacles: Obstacles,
+    depth_noise_m: float = 0.0,
+    noise_rng: np.random.Generator | None = None,
 ) -> np.ndarray:
     """Images of every step of an episode with the target drawn at that step's goal.
 
@@ -109,11 +111,15 @@ def rerender_images(
         joints: (T + 1, 6) joint angles, radians.
         goals: (T + 1, 3) target centre per step, world frame, metres.
         obstacles: the episode's obstacles (they never move during an episode).
+        depth_noise_m, noise_rng: the depth camera's noise (`add_depth_noise`, as
+            `ReachEnv(depth_noise_m=...)` adds it), drawn from `noise_rng`; 0: exact depth.
 
     Returns:
         (T + 1, V, 4, H, W) uint8 RGB + depth (``clamgen.sim.state.images_from_render``), the
         same frames ``ReachEnv.render_images(joints[t], goals[t], obstacles)`` gives.
     """
+    if depth_noise_m and noise_rng is None:
+        raise ValueError("depth_noise_m > 0 needs a noise_rng to draw the noise from")
     joints = np.asarray(joints)
     goals = np.asarray(goals)
     _check_inputs(joints, goals, obstacles)
@@ -128,7 +134,8 @@ def rerender_images(
         for t, (q, goal) in enumerate(zip(joints, goals, strict=True)):
             scene.data.mocap_pos[scene.target_mocap] = goal
             scene.set_joints(q)  # mj_kinematics also moves the mocap target body
-            images[t] = images_from_render(*renderer.render(scene.data))
+            rgb, depth_m = renderer.render(scene.data)
+            images[t] = images_from_render(rgb, add_depth_noise(depth_m, depth_noise_m, noise_rng))
     finally:
         saved.apply(scene)
     return images
@@ -182,6 +189,12 @@ def _make_renderer(scene: Scene, num_views: int, image_size: int) -> MultiViewRe
     return MultiViewRenderer(scene.model, scene.camera_ids[:num_views], image_size, image_size)
 
 
+def _noise_rng(seed: int, job_id: int) -> np.random.Generator:
+    """The depth noise's stream for one job: fixed by the worker's seed and the job's number,
+    so that the same submissions get the same noise in the worker and in this process."""
+    return np.random.default_rng([seed, DEPTH_NOISE_STREAM, job_id])
+
+
 # ------------------------------------------------------------------------ worker process
 class _Sender:
     """Sends a worker's messages from a thread, so rendering goes on while the parent has not
@@ -211,7 +224,12 @@ class _Sender:
 
 
 def _worker_main(
-    requests: multiprocessing.Queue, results: Connection, num_views: int, size: int
+    requests: multiprocessing.Queue,
+    results: Connection,
+    num_views: int,
+    size: int,
+    depth_noise_m: float,
+    seed: int,
 ) -> None:
     """Body of the worker process: render jobs until the ``None`` sentinel or parent's death.
 
@@ -246,7 +264,10 @@ def _worker_main(
             try:
                 start = time.perf_counter()
                 obstacles = Obstacles(kinds, positions_m, half_sizes_m)
-                images = rerender_images(scene, renderer, joints, goals, obstacles)
+                images = rerender_images(
+                    scene, renderer, joints, goals, obstacles, depth_noise_m,
+                    _noise_rng(seed, job_id),
+                )  # fmt: skip
                 sender.send((_DONE, job_id, (images, time.perf_counter() - start)))
             except Exception:
                 sender.send((_JOB_ERROR, job_id, traceback.format_exc()))
@@ -308,6 +329,10 @@ class RerenderWorker:
         image_size: height = width of each view, pixels.
         max_pending: episodes in flight before ``submit`` blocks (>= 1).
         synchronous: render in this process inside ``submit``; no worker process.
+        depth_noise_m: the depth camera's noise model (`ReachEnv(depth_noise_m=...)`), so that
+            re-rendered images are as noisy as the env's; 0: exact depth.
+        seed: seeds the noise: the k-th episode submitted gets the same noise in the worker and
+            in synchronous mode.
     """
 
     def __init__(
@@ -317,6 +342,8 @@ class RerenderWorker:
         *,
         max_pending: int = DEFAULT_MAX_PENDING,
         synchronous: bool = False,
+        depth_noise_m: float = 0.0,
+        seed: int = 0,
     ) -> None:
         # Set first so that close() and __del__ work however far __init__ gets.
         self._closed = False
@@ -328,10 +355,14 @@ class RerenderWorker:
             raise ValueError(f"image_size must be a positive integer, got {image_size}")
         if max_pending < 1:
             raise ValueError(f"max_pending must be >= 1, got {max_pending}")
+        if not 0 <= depth_noise_m < float("inf"):
+            raise ValueError(f"depth_noise_m must be a finite number >= 0, got {depth_noise_m}")
         self.num_views = num_views
         self.image_size = int(image_size)
         self.max_pending = max_pending
         self.synchronous = synchronous
+        self.depth_noise_m = float(depth_noise_m)
+        self.seed = int(seed)
         self._view_shape = (num_views, IMAGE_CHANNELS, self.image_size, self.image_size)
         self._job_ids = itertools.count()
         self._jobs: dict[int, _Job] = {}  # submitted, not yet back from the worker
@@ -351,7 +382,7 @@ class RerenderWorker:
         self._results, writer = context.Pipe(duplex=False)
         self._process = context.Process(
             target=_worker_main,
-            args=(self._requests, writer, num_views, self.image_size),
+            args=(self._requests, writer, num_views, self.image_size, depth_noise_m, seed),
             name="clamgen-rerender",
             # Daemonic: the interpreter terminates it at exit if close() was never called.
             daemon=True,
@@ -414,7 +445,7 @@ class RerenderWorker:
         rest = {key: value for key, value in episode.obs.items() if key != IMAGES_KEY}
         job = _Job(tag, dataclasses.replace(episode, obs=rest), time.perf_counter())
         if self.synchronous:
-            self._render_here(job, joints, goals, obstacles)
+            self._render_here(job, next(self._job_ids), joints, goals, obstacles)
             return
         self._wait_for_slot(block, timeout)
         job_id = next(self._job_ids)
@@ -513,14 +544,17 @@ class RerenderWorker:
             raise RuntimeError("this RerenderWorker is closed")
 
     def _render_here(
-        self, job: _Job, joints: np.ndarray, goals: np.ndarray, obstacles: Obstacles
+        self, job: _Job, job_id: int, joints: np.ndarray, goals: np.ndarray, obstacles: Obstacles
     ) -> None:
         if self._scene is None:
             self._scene = Scene()
             self._renderer = _make_renderer(self._scene, self.num_views, self.image_size)
         try:
             start = time.perf_counter()
-            images = rerender_images(self._scene, self._renderer, joints, goals, obstacles)
+            images = rerender_images(
+                self._scene, self._renderer, joints, goals, obstacles, self.depth_noise_m,
+                _noise_rng(self.seed, job_id),
+            )  # fmt: skip
             render_s = time.perf_counter() - start
         except Exception as error:
             failure = RerenderError(

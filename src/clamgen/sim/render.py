@@ -76,6 +76,22 @@ def depth_to_uint8(depth_m: np.ndarray, depth_range_m=C.DEPTH_RANGE_M) -> np.nda
     return np.clip(scaled + 0.5, 0, 255).astype(np.uint8)
 
 
+DEPTH_NOISE_STREAM = 0xDE9
+"""Mixed into a seed for the depth noise's own random stream (`add_depth_noise`), so that noise
+draws nothing from the streams of the tasks and the target's motion."""
+
+
+def add_depth_noise(depth_m: np.ndarray, noise_m: float, rng: np.random.Generator) -> np.ndarray:
+    """`depth_m` (metres, any shape) with a depth camera's axial noise: Gaussian along each
+    pixel's ray, of standard deviation `noise_m * z**2` at depth z (the noise of
+    structured-light and stereo RGBD cameras grows with the square of the distance; 0:
+    `depth_m` itself, nothing drawn)."""
+    if not noise_m:
+        return depth_m
+    noise = rng.standard_normal(depth_m.shape, np.float32)
+    return depth_m + noise * (np.float32(noise_m) * depth_m * depth_m)
+
+
 def uint8_to_depth(depth_u8: np.ndarray, depth_range_m=C.DEPTH_RANGE_M) -> np.ndarray:
     """Inverse of `depth_to_uint8` (up to quantisation of (far - near) / 255 metres)."""
     near, far = depth_range_m
