@@ -4,7 +4,10 @@
 
 Per number of views and row: blocked success with its 95% Wilson interval, blocked
 collisions and standard success at each noise level K (sd K z^2 m), exact depth (K = 0)
-from the committed Table 2 rows of the same settings.
+from the committed Table 2 rows of the same settings. Then the rows run on more training
+seeds (`seeds.sh`, files `seeds/<kind><V>_seed<S>_k<K>.json`; the shipped seed's row from
+above): means over seeds with 95% stratified-bootstrap intervals, beside the exact-depth rows
+of the same seeds (`../ensemble/seeds/`).
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import json
 import re
 from pathlib import Path
 
+from clamgen.experiments.aggregate import seed_summary
 from clamgen.experiments.tables import wilson_interval
 
 HERE = Path(__file__).resolve().parent
@@ -35,6 +39,45 @@ EXACT = {
 }
 """The committed exact-depth rows of the same settings (the told rows share them: told
 nothing, a map assumes exact depth)."""
+
+
+SEED_KINDS = {"alone": "residual", "hybrid-told": "hybrid-told"}
+"""`seeds.sh`'s kinds and the shipped seed's row of each (the files above)."""
+SHIPPED_SEED = 5
+VIEWS_OF = {"3": "3views", "2": "2views", "1": "1view"}
+ENSEMBLE = ROOT / "results" / "stage2" / "ensemble"
+EXACT_SEEDS = {
+    "alone": ("{v}v-dagger+2_test.json", "seeds/student{n}_seed{seed}.json"),
+    "hybrid-told": ("../../table2/hybrid_residual-{views}.json", "seeds/hybrid{n}_seed{seed}.json"),
+}
+"""Exact depth, the same students: (the shipped seed's row, another seed's) under
+`../ensemble/` (the hybrid's exact rows: the committed hybrid, whose map nothing tells)."""
+
+
+def seed_rows() -> dict[str, list[tuple[int, Path]]]:
+    """{row: [(training seed, Table 2 JSON), ...]}, the shipped seed first, for every (kind,
+    views, K) with other seeds' rows in seeds/, each followed by its exact-depth row."""
+    runs: dict[tuple[str, str, str], list[tuple[int, Path]]] = {}
+    for path in sorted((HERE / "seeds").glob("*.json")):
+        match = re.fullmatch(r"(alone|hybrid-told)(\d)_seed(\d+)_k(.+)", path.stem)
+        if match:
+            kind, n, seed, level = match.groups()
+            runs.setdefault((kind, n, level), []).append((int(seed), path))
+    rows = {}
+    for (kind, n, level), seeds in sorted(runs.items(), key=lambda item: -int(item[0][1])):
+        views = VIEWS_OF[n]
+        shipped = HERE / f"{SEED_KINDS[kind]}-{views}-k{level}.json"
+        seeds = sorted(seeds)
+        noisy = f"{views}, {ROWS[SEED_KINDS[kind]]}, K = {level.replace('p', '.')}"
+        rows[noisy] = [(SHIPPED_SEED, shipped), *seeds]
+        first, other = EXACT_SEEDS[kind]
+        exact = [ENSEMBLE / first.format(v=n, views=views)]
+        exact += [ENSEMBLE / other.format(n=n, seed=seed) for seed, _ in seeds]
+        exact_row = ROWS[SEED_KINDS[kind].removesuffix("-told")]
+        rows[f"{views}, {exact_row}, exact depth, same seeds"] = list(
+            zip([SHIPPED_SEED, *(seed for seed, _ in seeds)], exact, strict=True)
+        )
+    return rows
 
 
 def _families(path: Path) -> dict[str, dict]:
@@ -90,6 +133,19 @@ def main() -> None:
             cells += [_cell(found.get((row, views, k))) for k in levels]
             lines.append(f"| {ROWS[row]} | " + " | ".join(cells) + " |")
         lines.append("")
+    lines += [
+        "## Over training seeds",
+        "",
+        "The students of the shipped recipes' other seeds (`seeds.sh`), with the shipped seed's",
+        "row above; per family the mean over seeds of success and collision rate with its 95%",
+        "stratified-bootstrap interval (rliable), and each seed's value; beside each, the same",
+        "seeds on exact depth.",
+        "",
+        "```",
+        seed_summary(seed_rows(), ("blocked", "obstacles")),
+        "```",
+        "",
+    ]
     (HERE / "noise.md").write_text("\n".join(lines))
     print("\n".join(lines))
 
