@@ -41,7 +41,7 @@ EXACT = {
 nothing, a map assumes exact depth)."""
 
 
-SEED_KINDS = {"alone": "residual", "hybrid-told": "hybrid-told"}
+SEED_KINDS = {"alone": "residual", "hybrid-told": "hybrid-told", "escapes-told": "escapes-told"}
 """`seeds.sh`'s kinds and the shipped seed's row of each (the files above)."""
 SHIPPED_SEED = 5
 VIEWS_OF = {"3": "3views", "2": "2views", "1": "1view"}
@@ -49,6 +49,10 @@ ENSEMBLE = ROOT / "results" / "stage2" / "ensemble"
 EXACT_SEEDS = {
     "alone": ("{v}v-dagger+2_test.json", "seeds/student{n}_seed{seed}.json"),
     "hybrid-told": ("../../table2/hybrid_residual-{views}.json", "seeds/hybrid{n}_seed{seed}.json"),
+    "escapes-told": (
+        "../../table2/escapes_residual-{views}.json",
+        "seeds/escapes{n}_seed{seed}.json",
+    ),
 }
 """Exact depth, the same students: (the shipped seed's row, another seed's) under
 `../ensemble/` (the hybrid's exact rows: the committed hybrid, whose map nothing tells)."""
@@ -59,7 +63,7 @@ def seed_rows() -> dict[str, list[tuple[int, Path]]]:
     views, K) with other seeds' rows in seeds/, each followed by its exact-depth row."""
     runs: dict[tuple[str, str, str], list[tuple[int, Path]]] = {}
     for path in sorted((HERE / "seeds").glob("*.json")):
-        match = re.fullmatch(r"(alone|hybrid-told)(\d)_seed(\d+)_k(.+)", path.stem)
+        match = re.fullmatch(r"(alone|hybrid-told|escapes-told)(\d)_seed(\d+)_k(.+)", path.stem)
         if match:
             kind, n, seed, level = match.groups()
             runs.setdefault((kind, n, level), []).append((int(seed), path))

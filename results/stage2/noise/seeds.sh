@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # More training seeds of the noisy-depth rows (results/stage2/noise/README.md, "Over training
 # seeds"): the students of the shipped recipes' other seeds (their committed copies,
-# results/stage2/ensemble/seeds/d<V>_seed<S>_policy.pt), alone or in the hybrid told the
-# noise model, with noisy depth. Usage: seeds.sh K KIND V SEED...
-# (KIND: alone | hybrid-told; V: 3 | 2 | 1); files seeds/<kind><V>_seed<S>_k<K>.*; an
+# results/stage2/ensemble/seeds/d<V>_seed<S>_policy.pt), alone, in the hybrid or with the
+# escapes, the map told the noise model, with noisy depth. Usage: seeds.sh K KIND V SEED...
+# (KIND: alone | hybrid-told | escapes-told; V: 3 | 2 | 1); files seeds/<kind><V>_seed<S>_k<K>.*; an
 # evaluation whose JSON exists is skipped.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -20,6 +20,8 @@ for seed in "$@"; do
         alone) args=() name="$name, alone" ;;
         hybrid-told) args=(--depth-hybrid --depth-noise-model-m "$k")
             name="$name + the hybrid's depth shield and planner, told the noise model" ;;
+        escapes-told) args=(--depth-escapes --depth-noise-model-m "$k")
+            name="$name + the depth shield and random escapes, told the noise model" ;;
     esac
     python -m clamgen eval --table 2 --policy "results/stage2/ensemble/seeds/d${v}_seed${seed}_policy.pt" \
         "${args[@]}" --depth-noise-m "$k" --num-tasks 200 \

@@ -246,8 +246,10 @@ class DepthOccupancy:
     behind). Measured on 1-view validation tasks with 0.05 m: no change in collisions
     (`results/stage2/shield/README.md`). 0 turns either off. `noise_m` > 0: the depth
     camera's noise model, sd `noise_m * z**2` along each ray at depth z (m; `ReachEnv`'s
-    `depth_noise_m`): a point within `NOISE_SIGMAS` of them along its ray of the arm, the table
-    or the target is taken for it (the filters are set for exact depth otherwise).
+    `depth_noise_m`): a point within `NOISE_SIGMAS` sds along its ray of the arm or the table
+    is taken for it, and the target's filter grows by `NOISE_SIGMAS` sds at the target's
+    depth (a sphere; a test along the ray was piloted and not adopted:
+    `results/stage2/noise/README.md`). The filters are set for exact depth otherwise.
     """
 
     def __init__(
