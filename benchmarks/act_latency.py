@@ -18,7 +18,7 @@ against an obstacle until the time limit), as in an evaluation (its cost include
 policy's).
 
     python benchmarks/act_latency.py [--num-calls 400] [--extra POLICY ...] [--policies-only]
-        [--in-episodes] [--no-csv]
+        [--in-episodes] [--depth-noise-m K] [--no-csv]
 
 With `--in-episodes`, every row (the policies alone too) acts in live episodes instead, on
 the same blocked and standard tasks, its act timed between the env's steps as `clamgen eval`
@@ -26,10 +26,14 @@ times it: the env renders the next views in between, so the policy's weights and
 arrays are no longer in the CPU's caches (in evaluations the shielded 3-view policy's act took
 about twice its time in the replay). The rows take turns episode by episode.
 
+With `--depth-noise-m K`, every row's views (and the shield's depth cameras) carry a depth
+camera's noise, sd K z^2 m (`ReachEnv(depth_noise_m=K)`), and the shielded rows' maps are told
+it (`--depth-noise-model-m K`): the told wrappers' act time, against the same reference.
+
 Prints each policy's median and 95th-percentile act time and its ratio to the reference's
 median; writes results/benchmarks/act_latency.csv (act_latency_in_episodes.csv with
-`--in-episodes`) unless --no-csv. `--extra` adds other policy files (alone),
-`--policies-only` leaves out the shielded rows.
+`--in-episodes`; `_noise_k<K>` before `.csv` with noise) unless --no-csv. `--extra` adds
+other policy files (alone), `--policies-only` leaves out the shielded rows.
 """
 
 from __future__ import annotations
@@ -161,18 +165,30 @@ def main() -> None:
         action="store_true",
         help="time every row's acts in live episodes, between env steps, as evaluations do",
     )
+    parser.add_argument(
+        "--depth-noise-m",
+        type=float,
+        default=0.0,
+        metavar="K",
+        help="noisy depth, sd K z^2 m, the shielded rows' maps told it (default: exact depth)",
+    )
     parser.add_argument("--no-csv", action="store_true")
     args = parser.parse_args()
+    if not 0 <= args.depth_noise_m < float("inf"):
+        raise SystemExit(f"--depth-noise-m must be a number >= 0, got {args.depth_noise_m}")
+    noise = {"depth_noise_m": args.depth_noise_m} if args.depth_noise_m else {}
     torch.set_num_threads(1)
     loaded = {}
     for label, name in (*POLICIES, *((path, path) for path in args.extra)):
         policy, _, env_kwargs = load_policy(name)
+        env_kwargs = env_kwargs | noise
         source = Live(policy, env_kwargs) if args.in_episodes else observations(env_kwargs)
         loaded[label] = (policy, source)
     for name, guard in () if args.policies_only else SHIELDED:
         policy, _, env_kwargs = load_policy(name)
+        guard = replace(guard, noise_m=args.depth_noise_m)
         shielded = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
-        env_kwargs = env_kwargs | guard.env_kwargs()
+        env_kwargs = env_kwargs | guard.env_kwargs() | noise
         if args.in_episodes:
             source = Live(shielded, env_kwargs)
         else:
@@ -181,9 +197,12 @@ def main() -> None:
         label += f", shadow {guard.shadow_m} m" if guard.shadow_m is not None else ""
         label += f", depth at {guard.fine_depth_size} px" if guard.fine_depth_size else ""
         label += ", random escapes" if guard.escapes else ""
+        label += f", told noise {guard.noise_m:g}" if guard.noise_m else ""
         loaded[label + ")"] = (shielded, source)
     times = time_live(loaded) if args.in_episodes else time_calls(loaded, args.num_calls)
-    report(times, "act_latency_in_episodes" if args.in_episodes else "act_latency", args.no_csv)
+    stem = "act_latency_in_episodes" if args.in_episodes else "act_latency"
+    stem += f"_noise_k{args.depth_noise_m:g}".replace(".", "p") if args.depth_noise_m else ""
+    report(times, stem, args.no_csv)
 
 
 def time_live(loaded: dict) -> dict[str, list[float]]:
