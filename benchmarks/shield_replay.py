@@ -11,8 +11,13 @@ prints each setting's median act time. `profile` runs the replay of one setting 
 cProfile.
 
     python benchmarks/shield_replay.py record runs/shield_replay.pkl [--episodes 4]
+        [--depth-noise-m K]
     python benchmarks/shield_replay.py check runs/shield_replay.pkl
     python benchmarks/shield_replay.py profile runs/shield_replay.pkl --setting fine-3
+
+With `--depth-noise-m K` the episodes are recorded on noisy depth (`ReachEnv(depth_noise_m=K)`)
+through shields told the noise (`DepthGuard.noise_m`, `--depth-noise-model-m K`); the file
+keeps K, and `check` and `profile` replay them the same way.
 """
 
 from __future__ import annotations
@@ -45,17 +50,23 @@ SETTINGS = {
 """Name: (policy, the shield's settings)."""
 
 
-def shielded(setting: str):
+NOISE_KEY = "depth_noise_m"
+"""The recorded file's entry for the depth noise (absent: exact depth)."""
+
+
+def shielded(setting: str, noise_m: float = 0.0):
     name, guard = SETTINGS[setting]
+    guard = replace(guard, noise_m=noise_m)
     policy, _, env_kwargs = load_policy(name)
     wrapped = guard.wrap(policy, env_kwargs["num_views"], env_kwargs["image_size"])
-    return wrapped, env_kwargs | guard.env_kwargs()
+    noise = {"depth_noise_m": noise_m} if noise_m else {}
+    return wrapped, env_kwargs | guard.env_kwargs() | noise
 
 
-def record(path: Path, episodes: int) -> None:
-    out: dict[str, list] = {}
+def record(path: Path, episodes: int, noise_m: float = 0.0) -> None:
+    out: dict[str, list | float] = {NOISE_KEY: noise_m}
     for setting in SETTINGS:
-        policy, env_kwargs = shielded(setting)
+        policy, env_kwargs = shielded(setting, noise_m)
         out[setting] = []
         for family in ("blocked", "obstacles"):
             env = ReachEnv(num_obstacles=2, task_family=family, **env_kwargs)
@@ -100,24 +111,30 @@ def main() -> None:
     parser.add_argument("path", type=Path, help="the recorded episodes (a pickle)")
     parser.add_argument("--episodes", type=int, default=4, help="per task family (record)")
     parser.add_argument("--setting", choices=tuple(SETTINGS), default="fine-3")
+    parser.add_argument(
+        "--depth-noise-m", type=float, default=0.0, metavar="K", help="noisy depth (record)"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.mode == "record":
-        record(args.path, args.episodes)
+        if not 0 <= args.depth_noise_m < float("inf"):
+            sys.exit(f"error: --depth-noise-m must be a number >= 0, got {args.depth_noise_m}")
+        record(args.path, args.episodes, args.depth_noise_m)
         return
     if not args.path.is_file():
         sys.exit(f"error: no recorded episodes at {args.path} (run `record` first)")
     with open(args.path, "rb") as f:
         recorded = pickle.load(f)
+    noise_m = recorded.pop(NOISE_KEY, 0.0)
     if args.mode == "profile":
-        policy, _ = shielded(args.setting)
+        policy, _ = shielded(args.setting, noise_m)
         profiler = cProfile.Profile()
         profiler.runcall(replay, policy, recorded[args.setting])
         pstats.Stats(profiler).sort_stats("tottime").print_stats(30)
         return
     total = 0
     for setting, episodes in recorded.items():
-        policy, _ = shielded(setting)
+        policy, _ = shielded(setting, noise_m)
         steps, differ, times = replay(policy, episodes)
         total += differ
         print(

@@ -364,8 +364,9 @@ class DepthOccupancy:
         points, *directions, pixels = self.lift(
             images, changed_only=True, with_rays=self.extrude_m > 0, with_pixels=True
         )
+        sigma = None
         if self.noise_m > 0:
-            points, pixels, directions = self._off_table(points, pixels, directions)
+            points, pixels, directions, sigma = self._off_table(points, pixels, directions)
         index, cells, new = surface_candidates(
             points,
             np.asarray(goal, np.float64),
@@ -381,7 +382,9 @@ class DepthOccupancy:
             self._pixel_points[pixels[index[~new]]] = points[index[~new]]
         index, cells = index[new], cells[new]
         if len(index):
-            off_arm = self._off_arm(points[index], joints, pixels[index])
+            off_arm = self._off_arm(
+                points[index], joints, pixels[index], None if sigma is None else sigma[index]
+            )
             index, cells = index[off_arm], cells[off_arm]
         if len(index):
             mine = points[index]
@@ -425,16 +428,23 @@ class DepthOccupancy:
         return voxels[inside] @ self._strides
 
     def _off_arm(
-        self, points: np.ndarray, joints: np.ndarray, pixels: np.ndarray | None = None
+        self,
+        points: np.ndarray,
+        joints: np.ndarray,
+        pixels: np.ndarray | None = None,
+        sigma: np.ndarray | None = None,
     ) -> np.ndarray:
         """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (the test
         runs on every pixel the arm's motion changed: compiled, `within_capsules`); with a
-        noise model, at every point up to `NOISE_SIGMAS` sds along their rays (`pixels`)."""
+        noise model, at every point up to `NOISE_SIGMAS` sds along their rays (`pixels`; their
+        sds `sigma` if known, else `_sigma`)."""
         starts, ends = self.arm.segments(joints)
         reach = self.arm.radii + ARM_FILTER_M
         if self.noise_m <= 0 or pixels is None:
             return ~within_capsules(points, starts, ends, reach)
-        shifts = NOISE_SIGMAS * self._sigma(points, pixels)[:, None] * self.rays[pixels]  # P, 3
+        if sigma is None:
+            sigma = self._sigma(points, pixels)
+        shifts = NOISE_SIGMAS * sigma[:, None] * self.rays[pixels]  # P, 3
         return ~rays_within_capsules(points, shifts, starts, ends, reach)
 
     def _sigma(self, points: np.ndarray, pixels: np.ndarray) -> np.ndarray:
@@ -447,10 +457,12 @@ class DepthOccupancy:
 
     def _off_table(self, points: np.ndarray, pixels: np.ndarray, directions: list):
         """`points`, `pixels` and `directions` but those that `NOISE_SIGMAS` sds along their
-        rays would put on the table (less than `ABOVE_TABLE_M` above its top)."""
-        drop = NOISE_SIGMAS * self._sigma(points, pixels) * np.abs(self.rays[pixels, 2])
+        rays would put on the table (less than `ABOVE_TABLE_M` above its top), and the kept
+        points' sds (`_sigma`)."""
+        sigma = self._sigma(points, pixels)
+        drop = NOISE_SIGMAS * sigma * np.abs(self.rays[pixels, 2])
         keep = points[:, 2] - drop > C.TABLE_TOP_Z_M + ABOVE_TABLE_M
-        return points[keep], pixels[keep], [d[keep] for d in directions]
+        return points[keep], pixels[keep], [d[keep] for d in directions], sigma[keep]
 
     def _target_reach(self, goal: np.ndarray) -> float:
         """How near the target a point is taken for target: `TARGET_REACH_M`, with a noise
