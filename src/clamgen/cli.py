@@ -567,10 +567,9 @@ def evaluate_table(config: EvalConfig) -> list:
     if env_id in ENV_IDS:  # (another env's results are named after it, and checked there)
         _refuse_to_overwrite(out, (".json", ".md"), config.overwrite)
     try:
-        policy, source, env_kwargs = load_policy(config.policy)
+        policy, source, env_kwargs = _load_with_depth_rrt_options(config, load_policy)
     except CheckpointError as error:
         raise SystemExit(str(error)) from error
-    policy, source, env_kwargs = _with_depth_rrt_options(policy, source, env_kwargs, config)
     if config.lookahead_candidates != 0:
         policy, source = _with_lookahead(
             policy, source, config.lookahead_candidates, config.lookahead_margin_m
@@ -854,20 +853,23 @@ def _with_action_scale(policy, source: str, scale: float):
         raise SystemExit(f"bad --action-scale: {error}") from error
 
 
-def _with_depth_rrt_options(policy, source: str, env_kwargs: dict, config):
-    """A `depth-rrt-*` baseline with --depth-plan-checks N, --depth-track-m M or
-    --depth-noise-model-m K: built again with plans of N validity checks (the same plans on
-    any machine), tracking a moving target at M, or its map told the noise model K, its source
-    saying so (`_depth_rrt_options`); anything else unchanged."""
-    name = str(config.policy)
+def _load_with_depth_rrt_options(config, load) -> tuple:
+    """`load(config.policy)` (a `load_policy`); a `depth-rrt-*` baseline with
+    --depth-plan-checks N, --depth-track-m M or --depth-noise-model-m K is built with plans of
+    N validity checks (the same plans on any machine), tracking a moving target at M, or its
+    map told the noise model K, its source saying so (`_depth_rrt_options`)."""
     changes = _depth_rrt_options(config)
-    if name not in DEPTH_RRT_BASELINES or not changes:
-        return policy, source, env_kwargs
-    from clamgen.experiments.depth_planner import TRACK_M, depth_rrt
+    if str(config.policy) not in DEPTH_RRT_BASELINES or not changes:
+        return load(config.policy)
+    from clamgen.experiments.depth_planner import TRACK_M
+    from clamgen.experiments.policies import load_policy
 
-    views, checks = DEPTH_RRT_BASELINES[name], config.depth_plan_checks
-    track_m, noise_m = _track_m(config, TRACK_M), _noise_model_m(config)
-    policy, env_kwargs = depth_rrt(views, checks, track_m, noise_m)
+    policy, source, env_kwargs = load_policy(
+        config.policy,
+        plan_checks=config.depth_plan_checks,
+        track_m=_track_m(config, TRACK_M),
+        noise_m=_noise_model_m(config),
+    )
     return policy, source + changes, env_kwargs
 
 
@@ -964,8 +966,7 @@ def render(config) -> dict:
     label = policy_label(config.policy)
     config = dataclasses.replace(config, out=output_stem(config, label))  # refuses to overwrite
     try:
-        policy, _, env_kwargs = _load_policy(config.policy)
-        policy, _, env_kwargs = _with_depth_rrt_options(policy, "", env_kwargs, config)
+        policy, _, env_kwargs = _load_with_depth_rrt_options(config, _load_policy)
         policy, _ = _with_action_scale(policy, "", config.action_scale)
         if _wants_depth_shield(config):
             policy, _, env_kwargs = _with_depth_shield(policy, "", env_kwargs, config)

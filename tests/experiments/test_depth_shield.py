@@ -429,6 +429,11 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
         depth_rrt(0)
     assert depth_rrt(2, plan_checks=5000)[0].rrt.max_checks == 5000
     assert depth_rrt(2)[0].rrt.max_checks is None  # the time budget
+    # By name with options (as `clamgen eval` builds it, once).
+    told = load_policy("depth-rrt-2views", plan_checks=5000, noise_m=0.003)[0]
+    assert told.rrt.max_checks == 5000 and told.occupancy.noise_m == 0.003
+    with pytest.raises(TypeError, match="depth_rrt_options"):
+        load_policy("ik", noise_m=0.003)
     for extra in (["--depth-hybrid"], ["--depth-views", "2", "--depth-escapes"]):
         with pytest.raises(SystemExit, match="drop the --depth-\\* options \\(but"):
             main(["eval", "--policy", "depth-rrt-2views", *extra, "--out", str(tmp_path / "x")])

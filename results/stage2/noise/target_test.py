@@ -55,7 +55,7 @@ import numpy as np
 import torch
 
 import clamgen
-from clamgen.cli import EvalConfig, _with_depth_rrt_options, _with_depth_shield
+from clamgen.cli import EvalConfig, _load_with_depth_rrt_options, _with_depth_shield
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_shield import DepthOccupancy
@@ -108,8 +108,7 @@ def installed_commit() -> str:
 
 def run(row: str, views: int, family: str) -> dict:
     config = ROWS[row](views)
-    policy, source, env_kwargs = load_policy(config.policy)
-    policy, source, env_kwargs = _with_depth_rrt_options(policy, source, env_kwargs, config)
+    policy, source, env_kwargs = _load_with_depth_rrt_options(config, load_policy)
     if row != "planner":
         policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
     env = ReachEnv(num_obstacles=2, task_family=family, depth_noise_m=NOISE_M, **env_kwargs)

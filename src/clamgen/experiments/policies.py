@@ -40,7 +40,7 @@ __all__ = [
 ]
 
 
-def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
+def load_policy(name: str | Path, **depth_rrt_options) -> tuple[Policy, str, dict]:
     """A policy, a description of where it came from, and the env options it observes with.
 
     `name`: "ik" (IK interpolation), "rrt" (OMPL RRTConnect with the full scene model),
@@ -49,9 +49,12 @@ def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
     policy), a shipped vision policy, or the path of a policy file from `clamgen train` or
     `clamgen train-residual`. The env options (views, image size, obstacle poses) are those
     the policy was trained with, or the views the depth baselines plan on; the other
-    baselines and joint policies need none.
+    baselines and joint policies need none. `depth_rrt_options` (`plan_checks`, `track_m`,
+    `noise_m`) go to `depth_planner.depth_rrt` for a depth baseline (TypeError for others).
     Raises `clamgen.experiments.checkpoint.CheckpointError` for a bad policy file.
     """
+    if depth_rrt_options and name not in DEPTH_RRT_BASELINES:
+        raise TypeError(f"depth_rrt_options are for {sorted(DEPTH_RRT_BASELINES)}, not {name}")
     if name == "ik":
         from clamgen.baselines import IKInterpolationPolicy
 
@@ -63,7 +66,7 @@ def load_policy(name: str | Path) -> tuple[Policy, str, dict]:
     if name in DEPTH_RRT_BASELINES:
         from clamgen.experiments.depth_planner import depth_rrt
 
-        policy, env_kwargs = depth_rrt(DEPTH_RRT_BASELINES[name])
+        policy, env_kwargs = depth_rrt(DEPTH_RRT_BASELINES[name], **depth_rrt_options)
         return policy, f"{name} (RRT-Connect on the depth map, no learned policy)", env_kwargs
     from clamgen.experiments import checkpoint as ckpt
     from clamgen.experiments.evaluate import SACPolicy
