@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import re
+import statistics
 from pathlib import Path
 
 from clamgen.experiments.aggregate import row_scores, seed_summary
@@ -41,46 +42,49 @@ EXACT = {
 nothing, a map assumes exact depth)."""
 
 
-SEED_KINDS = {"alone": "residual", "hybrid-told": "hybrid-told", "escapes-told": "escapes-told"}
-"""`seeds.sh`'s kinds and the shipped seed's row of each (the files above)."""
+HYBRID_EXACT = ("../../table2/hybrid_residual-{views}.json", "seeds/hybrid{n}_seed{seed}.json")
+SEED_KINDS = {
+    "alone": ("the residual alone", "residual", "the residual alone",
+              ("{v}v-dagger+2_test.json", "seeds/student{n}_seed{seed}.json")),
+    "hybrid-told": (ROWS["hybrid-told"], "hybrid-told", ROWS["hybrid"], HYBRID_EXACT),
+    "escapes-told": (ROWS["escapes-told"], "escapes-told", ROWS["escapes"],
+                     ("../../table2/escapes_residual-{views}.json",
+                      "seeds/escapes{n}_seed{seed}.json")),
+    "hybrid-told64": ("hybrid on the policy's own views, map told the noise", None,
+                      ROWS["hybrid"], HYBRID_EXACT),
+}  # fmt: skip
+"""`seeds.sh`'s kinds: (row name; the stem of the shipped seed's row above, None where
+seeds/ holds it as seed 5; the exact-depth row's name; its files under `../ensemble/`, the
+shipped seed's and another seed's: the same students on exact depth, the hybrids' the
+committed hybrid, whose map nothing tells)."""
 SHIPPED_SEED = 5
 VIEWS_OF = {"3": "3views", "2": "2views", "1": "1view"}
 ENSEMBLE = ROOT / "results" / "stage2" / "ensemble"
-EXACT_SEEDS = {
-    "alone": ("{v}v-dagger+2_test.json", "seeds/student{n}_seed{seed}.json"),
-    "hybrid-told": ("../../table2/hybrid_residual-{views}.json", "seeds/hybrid{n}_seed{seed}.json"),
-    "escapes-told": (
-        "../../table2/escapes_residual-{views}.json",
-        "seeds/escapes{n}_seed{seed}.json",
-    ),
-}
-"""Exact depth, the same students: (the shipped seed's row, another seed's) under
-`../ensemble/` (the hybrid's exact rows: the committed hybrid, whose map nothing tells)."""
 
 
 def seed_rows() -> dict[str, list[tuple[int, Path]]]:
     """{row: [(training seed, Table 2 JSON), ...]}, the shipped seed first, for every (kind,
-    views, K) with other seeds' rows in seeds/, each followed by its exact-depth row."""
+    views, K) with rows in seeds/, each followed by its exact-depth row on the same seeds."""
     runs: dict[tuple[str, str, str], list[tuple[int, Path]]] = {}
+    kinds = "|".join(sorted(SEED_KINDS, key=len, reverse=True))
     for path in sorted((HERE / "seeds").glob("*.json")):
-        match = re.fullmatch(r"(alone|hybrid-told|escapes-told)(\d)_seed(\d+)_k(.+)", path.stem)
+        match = re.fullmatch(rf"({kinds})(\d)_seed(\d+)_k(.+)", path.stem)
         if match:
             kind, n, seed, level = match.groups()
             runs.setdefault((kind, n, level), []).append((int(seed), path))
     rows = {}
     for (kind, n, level), seeds in sorted(runs.items(), key=lambda item: -int(item[0][1])):
         views = VIEWS_OF[n]
-        shipped = HERE / f"{SEED_KINDS[kind]}-{views}-k{level}.json"
+        name, shipped, exact_name, (first, other) = SEED_KINDS[kind]
         seeds = sorted(seeds)
-        noisy = f"{views}, {ROWS[SEED_KINDS[kind]]}, K = {level.replace('p', '.')}"
-        rows[noisy] = [(SHIPPED_SEED, shipped), *seeds]
-        first, other = EXACT_SEEDS[kind]
-        exact = [ENSEMBLE / first.format(v=n, views=views)]
-        exact += [ENSEMBLE / other.format(n=n, seed=seed) for seed, _ in seeds]
-        exact_row = ROWS[SEED_KINDS[kind].removesuffix("-told")]
-        rows[f"{views}, {exact_row}, exact depth, same seeds"] = list(
-            zip([SHIPPED_SEED, *(seed for seed, _ in seeds)], exact, strict=True)
-        )
+        if shipped is not None:
+            seeds = [(SHIPPED_SEED, HERE / f"{shipped}-{views}-k{level}.json"), *seeds]
+        rows[f"{views}, {name}, K = {level.replace('p', '.')}"] = seeds
+        rows[f"{views}, {exact_name}, exact depth, the seeds of: {name}"] = [
+            (seed, ENSEMBLE / (first if seed == SHIPPED_SEED else other).format(
+                v=n, n=n, views=views, seed=seed))
+            for seed, _ in seeds
+        ]  # fmt: skip
     return rows
 
 
@@ -92,22 +96,25 @@ def seed_table(rows: dict[str, list[tuple[int, Path]]]) -> list[str]:
     lines[0] += " |"
     lines.append("|---" * (len(levels) + 4) + "|")
     for n, views in VIEWS_OF.items():
-        for row in SEED_KINDS.values():
-            exact = rows.get(f"{views}, {ROWS[row.removesuffix('-told')]}, exact depth, same seeds")
-            if exact is None:
+        for name, _, exact_name, _ in SEED_KINDS.values():
+            noisy = [rows.get(f"{views}, {name}, K = {k}") for k in levels]
+            exact = rows.get(f"{views}, {exact_name}, exact depth, the seeds of: {name}")
+            if exact is None or not any(noisy):
                 continue
-            cells = [_seed_means(exact)]
-            cells += [_seed_means(rows.get(f"{views}, {ROWS[row]}, K = {k}")) for k in levels]
-            lines.append(f"| {n} | {ROWS[row]} | {len(exact)} | " + " | ".join(cells) + " |")
+            cells = [_seed_means(exact), *(_seed_means(runs) for runs in noisy)]
+            lines.append(f"| {n} | {name} | {len(exact)} | " + " | ".join(cells) + " |")
     return lines
 
 
 def _seed_means(runs: list[tuple[int, Path]] | None) -> str:
+    """'success / collisions / act ms' on the blocked tasks: means over seeds, and the median
+    over seeds of each row's median act."""
     if runs is None:
         return "-"
     scores = [row_scores(path)["blocked"] for _, path in runs]
     success, collided = (sum(s[i] for s in scores) / len(scores) for i in (0, 1))
-    return f"{success:.3f} / {collided:.3f}"
+    act = statistics.median(_families(path)["blocked"]["median_act_ms"] for _, path in runs)
+    return f"{success:.3f} / {collided:.3f} / {act:.2f}"
 
 
 def _families(path: Path) -> dict[str, dict]:
@@ -170,7 +177,8 @@ def main() -> None:
         "row above; per family the mean over seeds of success and collision rate with its 95%",
         "stratified-bootstrap interval (rliable), and each seed's value; beside each, the same",
         "seeds on exact depth (the wrappers as shipped: exact depth has no noise to tell). First",
-        "blocked success / blocked collisions, means over seeds:",
+        "blocked success / blocked collisions (means over seeds) / act ms (the median over seeds",
+        "of each row's blocked median act; two evaluations at a time on the two cores):",
         "",
         *seed_table(seed_rows()),
         "",
