@@ -27,12 +27,12 @@ steps; the blocked act median).
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
+from target_test import read_lines, run_missing  # (this folder: the pilots' shared loop)
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
@@ -86,21 +86,18 @@ def main() -> None:
     parser.add_argument("--test", choices=tuple(TESTS))
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
-    lines = [json.loads(x) for x in OUT.read_text().splitlines()] if OUT.exists() else []
+    lines = read_lines(OUT)
     if not args.summary:
         torch.set_num_threads(1)
-        for views in POLICIES:
-            for noise_m in LEVELS:
-                for family in COUNTS:
-                    key = (args.test, views, noise_m, family)
-                    done = {(x["test"], x["views"], x["noise_m"], x["family"]) for x in lines}
-                    if key in done:
-                        continue
-                    line = run(*key)
-                    with OUT.open("a") as f:
-                        f.write(json.dumps(line) + "\n")
-                    lines.append(line)
-                    print(f"{key}: done", flush=True)
+        keys = [
+            (args.test, views, noise_m, family)
+            for views in POLICIES
+            for noise_m in LEVELS
+            for family in COUNTS
+        ]
+        run_missing(
+            keys, lambda x: (x["test"], x["views"], x["noise_m"], x["family"]), run, lines, OUT
+        )
     summary(lines)
 
 

@@ -120,6 +120,27 @@ def run(row: str, views: int, family: str) -> dict:
             **per_task(records), "commit": installed_commit(), "machine": describe()}  # fmt: skip
 
 
+def read_lines(out: Path) -> list[dict]:
+    """The JSON lines of `out` (none if it does not exist)."""
+    return [json.loads(x) for x in out.read_text().splitlines()] if out.exists() else []
+
+
+def run_missing(keys, key_of, run, lines: list[dict], out: Path) -> None:
+    """`run(*key)` for each of `keys` that no line of `lines` holds (`key_of(line)`), each
+    result appended to `lines` and written to `out` as a JSON line as soon as it is done (a
+    killed pilot goes on where it stopped)."""
+    done = {key_of(line) for line in lines}
+    for key in keys:
+        if key in done:
+            continue
+        line = run(*key)
+        with out.open("a") as f:
+            f.write(json.dumps(line) + "\n")
+        lines.append(line)
+        done.add(key)
+        print(f"{key}: done", flush=True)
+
+
 def summary(lines: list[dict]) -> None:
     for line in lines:
         success, collided = int(np.sum(line["success"])), int(np.sum(line["collided"]))
@@ -144,22 +165,24 @@ def main() -> None:
     parser.add_argument("--pilot", choices=tuple(PILOTS), help="default: the test's")
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
-    lines = [json.loads(x) for x in OUT.read_text().splitlines()] if OUT.exists() else []
+    lines = read_lines(OUT)
     if not args.summary:
         if args.test.split("-")[0] != installed_test():
             raise SystemExit(f"--test {args.test}: the installed map's is {installed_test()}")
         torch.set_num_threads(1)
-        for row, numbers in PILOTS[args.pilot or TESTS[args.test]]:
-            for views in numbers:
-                for family in COUNTS:
-                    key = (args.test, row, views, family)
-                    if any((x["test"], x["row"], x["views"], x["family"]) == key for x in lines):
-                        continue
-                    line = {"test": args.test, **run(row, views, family)}
-                    with OUT.open("a") as f:
-                        f.write(json.dumps(line) + "\n")
-                    lines.append(line)
-                    print(f"{key}: done", flush=True)
+        keys = [
+            (args.test, row, views, family)
+            for row, numbers in PILOTS[args.pilot or TESTS[args.test]]
+            for views in numbers
+            for family in COUNTS
+        ]
+        run_missing(
+            keys,
+            lambda x: (x["test"], x["row"], x["views"], x["family"]),
+            lambda test, *rest: {"test": test, **run(*rest)},
+            lines,
+            OUT,
+        )
     summary(lines)
 
 

@@ -266,7 +266,7 @@ def _worker_main(
                 obstacles = Obstacles(kinds, positions_m, half_sizes_m)
                 images = rerender_images(
                     scene, renderer, joints, goals, obstacles, depth_noise_m,
-                    _noise_rng(seed, job_id),
+                    _noise_rng(seed, job_id) if depth_noise_m else None,
                 )  # fmt: skip
                 sender.send((_DONE, job_id, (images, time.perf_counter() - start)))
             except Exception:
@@ -553,7 +553,7 @@ class RerenderWorker:
             start = time.perf_counter()
             images = rerender_images(
                 self._scene, self._renderer, joints, goals, obstacles, self.depth_noise_m,
-                _noise_rng(self.seed, job_id),
+                _noise_rng(self.seed, job_id) if self.depth_noise_m else None,
             )  # fmt: skip
             render_s = time.perf_counter() - start
         except Exception as error:
