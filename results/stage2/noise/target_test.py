@@ -69,19 +69,19 @@ OFFSET = 490_000
 NOISE_M = 0.01
 COUNTS = {"blocked": 100, "obstacles": 50}
 ROWS = {
-    "hybrid": lambda views: EvalConfig(
+    "hybrid": lambda views, noise_m: EvalConfig(
         policy=f"residual-{views}view{'s' if views > 1 else ''}",
         depth_hybrid=True,
-        depth_noise_model_m=NOISE_M,
+        depth_noise_model_m=noise_m,
     ),
-    "planner": lambda views: EvalConfig(
+    "planner": lambda views, noise_m: EvalConfig(
         policy=f"depth-rrt-{views}view{'s' if views > 1 else ''}",
-        depth_noise_model_m=NOISE_M,
+        depth_noise_model_m=noise_m,
     ),
-    "escapes": lambda views: EvalConfig(
+    "escapes": lambda views, noise_m: EvalConfig(
         policy=f"residual-{views}view{'s' if views > 1 else ''}",
         depth_escapes=True,
-        depth_noise_model_m=NOISE_M,
+        depth_noise_model_m=noise_m,
     ),
 }
 PILOTS = {
@@ -106,13 +106,15 @@ def installed_commit() -> str:
     return commit.stdout.strip() + ("+" if dirty.stdout.strip() else "")
 
 
-def run(row: str, views: int, family: str) -> dict:
-    config = ROWS[row](views)
+def run(row: str, views: int, family: str, noise_m: float = NOISE_M, offset: int = OFFSET) -> dict:
+    """`row` from `views` views on `COUNTS[family]` validation tasks of `family` from `offset`,
+    told noise `noise_m` (and rendered with it)."""
+    config = ROWS[row](views, noise_m)
     policy, source, env_kwargs = _load_with_depth_rrt_options(config, load_policy)
     if row != "planner":
         policy, source, env_kwargs = _with_depth_shield(policy, source, env_kwargs, config)
-    env = ReachEnv(num_obstacles=2, task_family=family, depth_noise_m=NOISE_M, **env_kwargs)
-    first = VALIDATION_SEEDS.start + OFFSET
+    env = ReachEnv(num_obstacles=2, task_family=family, depth_noise_m=noise_m, **env_kwargs)
+    first = VALIDATION_SEEDS.start + offset
     seeds = [int(s) for s in VALIDATION_SEEDS.seeds(COUNTS[family], first)]
     records = evaluate(env, policy, seeds)
     env.close()
