@@ -144,6 +144,40 @@ def test_a_map_told_the_depth_noise_keeps_the_obstacles_and_not_the_noise_around
     env.close()
 
 
+def test_a_map_told_the_depth_noise_keeps_the_obstacle_surface_beside_the_target():
+    """The noise moves a point along its ray only: the told map drops the target's noisy pixels
+    (tested along the ray) but keeps the obstacle surface beside the target that exact depth
+    keeps, down to the same distance from it (a sphere grown by the noise at the target's
+    depth hid everything within 8 cm at this noise)."""
+    noise_m = 0.01
+    noisy_env, exact_env = _blocked_env(depth_noise_m=noise_m), _blocked_env()
+    told, exact = (
+        DepthOccupancy(VIEWS, SIZE, SIZE, noise_m=noise_m),
+        DepthOccupancy(VIEWS, SIZE, SIZE),
+    )
+    nearest = []
+    for seed in TEST_SEEDS.seeds(6):
+        obs, _ = noisy_env.reset(seed=int(seed))
+        exact_obs, _ = exact_env.reset(seed=int(seed))
+        told.reset()
+        exact.reset()
+        for _ in range(3):
+            told.update(obs)
+            exact.update(exact_obs)
+            obs = noisy_env.step(np.zeros(6, np.float32))[0]
+            exact_obs = exact_env.step(np.zeros(6, np.float32))[0]
+        goal = obs["desired_goal"].astype(np.float64)
+        near = np.linalg.norm(told.points - goal, axis=1) < 0.12
+        on_obstacles = surface_distance(told.points, noisy_env.unwrapped.scene.obstacles)
+        assert (on_obstacles[near].min(axis=1) > 0.03).sum() <= 1  # no target pixels kept
+        nearest.append([np.linalg.norm(m.points - goal, axis=1).min() for m in (told, exact)])
+    nearest = np.array(nearest)
+    assert (nearest[:, 0] < nearest[:, 1] + 0.015).all(), nearest
+    assert (nearest[:, 1] < 0.06).sum() >= 3, nearest  # tasks with surface close to the target
+    noisy_env.close()
+    exact_env.close()
+
+
 def test_bridged_pixels_add_surface_on_the_obstacles(blocked_env):
     """Joining neighbouring pixels' obstacle points (bridge_m) keeps more of the obstacles'
     surface, and all of it on them."""

@@ -247,9 +247,8 @@ class DepthOccupancy:
     (`results/stage2/shield/README.md`). 0 turns either off. `noise_m` > 0: the depth
     camera's noise model, sd `noise_m * z**2` along each ray at depth z (m; `ReachEnv`'s
     `depth_noise_m`): a point within `NOISE_SIGMAS` sds along its ray of the arm or the table
-    is taken for it, and the target's filter grows by `NOISE_SIGMAS` sds at the target's
-    depth (a sphere; a test along the ray was piloted and not adopted:
-    `results/stage2/noise/README.md`). The filters are set for exact depth otherwise.
+    or the target is taken for it (`_off_table_and_target`). The filters are set for exact
+    depth otherwise.
     """
 
     def __init__(
@@ -364,13 +363,16 @@ class DepthOccupancy:
         points, *directions, pixels = self.lift(
             images, changed_only=True, with_rays=self.extrude_m > 0, with_pixels=True
         )
+        goal = np.asarray(goal, np.float64)
         sigma = None
         if self.noise_m > 0:
-            points, pixels, directions, sigma = self._off_table(points, pixels, directions)
+            points, pixels, directions, sigma = self._off_table_and_target(
+                points, pixels, directions, goal
+            )
         index, cells, new = surface_candidates(
             points,
-            np.asarray(goal, np.float64),
-            self._target_reach(np.asarray(goal, np.float64)) ** 2,
+            goal,
+            TARGET_REACH_M**2,
             PEDESTAL_RADIUS_M**2,
             PEDESTAL_TOP_M,
             GRID_LOW_M,
@@ -455,22 +457,23 @@ class DepthOccupancy:
         depth = ((points - self._view_origins[view]) * self._view_axes[view]).sum(axis=1)
         return self.noise_m * depth * depth
 
-    def _off_table(self, points: np.ndarray, pixels: np.ndarray, directions: list):
+    def _off_table_and_target(
+        self, points: np.ndarray, pixels: np.ndarray, directions: list, goal: np.ndarray
+    ):
         """`points`, `pixels` and `directions` but those that `NOISE_SIGMAS` sds along their
-        rays would put on the table (less than `ABOVE_TABLE_M` above its top), and the kept
-        points' sds (`_sigma`)."""
+        rays would put on the table (less than `ABOVE_TABLE_M` above its top) or on the target
+        (within `TARGET_REACH_M` of `goal`, tested along the ray as the arm filter is:
+        `rays_within_capsules`, the target a capsule of no length), and the kept points' sds
+        (`_sigma`)."""
         sigma = self._sigma(points, pixels)
         drop = NOISE_SIGMAS * sigma * np.abs(self.rays[pixels, 2])
         keep = points[:, 2] - drop > C.TABLE_TOP_Z_M + ABOVE_TABLE_M
+        points, pixels, sigma = points[keep], pixels[keep], sigma[keep]
+        directions = [d[keep] for d in directions]
+        shifts = NOISE_SIGMAS * sigma[:, None] * self.rays[pixels]
+        centre = goal[None]
+        keep = ~rays_within_capsules(points, shifts, centre, centre, np.array([TARGET_REACH_M]))
         return points[keep], pixels[keep], [d[keep] for d in directions], sigma[keep]
-
-    def _target_reach(self, goal: np.ndarray) -> float:
-        """How near the target a point is taken for target: `TARGET_REACH_M`, with a noise
-        model `NOISE_SIGMAS` sds at the farthest view's depth of the target farther."""
-        if self.noise_m <= 0:
-            return TARGET_REACH_M
-        depth = float(((goal - self._view_origins) * self._view_axes).sum(axis=1).max())
-        return TARGET_REACH_M + NOISE_SIGMAS * self.noise_m * depth * depth
 
     def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
         """Cells up to `extrude_m` behind surface points along their viewing rays (an obstacle
