@@ -466,9 +466,8 @@ class EvalConfig:
     depth_noise_model_m: float = 0.0
     """With a depth wrapper (or a `depth-rrt-*` baseline): its map is told the depth cameras'
     noise model, sd this times z**2 at depth z (m; as --depth-noise-m), and takes a point
-    within 3 sds along its ray of the arm or the table for it, and one within 3 sds (at the
-    target's depth) of the target's filter for target (`depth_shield.DepthOccupancy`, beyond
-    the paper). 0: exact depth assumed."""
+    within 3 sds along its ray of the arm, the table or the target for it
+    (`depth_shield.DepthOccupancy`, beyond the paper). 0: exact depth assumed."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
     joint command, then the policy again, every step through the shield, which stops an escape
