@@ -7,7 +7,8 @@ collisions and standard success at each noise level K (sd K z^2 m), exact depth 
 from the committed Table 2 rows of the same settings. Then the rows run on more training
 seeds (`seeds.sh`, files `seeds/<kind><V>_seed<S>_k<K>.json`; the shipped seed's row from
 above): means over seeds with 95% stratified-bootstrap intervals, beside the exact-depth rows
-of the same seeds (`../ensemble/seeds/`).
+of the same seeds (`../ensemble/seeds/`). Last, the told rows as sessions 45-46 ran them, with
+the map's target test a sphere (`sphere/`, the same layout), beside the rows above.
 """
 
 from __future__ import annotations
@@ -62,12 +63,13 @@ VIEWS_OF = {"3": "3views", "2": "2views", "1": "1view"}
 ENSEMBLE = ROOT / "results" / "stage2" / "ensemble"
 
 
-def seed_rows() -> dict[str, list[tuple[int, Path]]]:
+def seed_rows(folder: Path = HERE) -> dict[str, list[tuple[int, Path]]]:
     """{row: [(training seed, Table 2 JSON), ...]}, the shipped seed first, for every (kind,
-    views, K) with rows in seeds/, each followed by its exact-depth row on the same seeds."""
+    views, K) with rows in `folder`/seeds/, each followed by its exact-depth row on the same
+    seeds."""
     runs: dict[tuple[str, str, str], list[tuple[int, Path]]] = {}
     kinds = "|".join(sorted(SEED_KINDS, key=len, reverse=True))
-    for path in sorted((HERE / "seeds").glob("*.json")):
+    for path in sorted((folder / "seeds").glob("*.json")):
         match = re.fullmatch(rf"({kinds})(\d)_seed(\d+)_k(.+)", path.stem)
         if match:
             kind, n, seed, level = match.groups()
@@ -78,7 +80,7 @@ def seed_rows() -> dict[str, list[tuple[int, Path]]]:
         name, shipped, exact_name, (first, other) = SEED_KINDS[kind]
         seeds = sorted(seeds)
         if shipped is not None:
-            seeds = [(SHIPPED_SEED, HERE / f"{shipped}-{views}-k{level}.json"), *seeds]
+            seeds = [(SHIPPED_SEED, folder / f"{shipped}-{views}-k{level}.json"), *seeds]
         rows[f"{views}, {name}, K = {level.replace('p', '.')}"] = seeds
         rows[f"{views}, {exact_name}, exact depth, the seeds of: {name}"] = [
             (seed, ENSEMBLE / (first if seed == SHIPPED_SEED else other).format(
@@ -133,10 +135,12 @@ def _cell(rows: dict[str, dict] | None) -> str:
     )
 
 
-def main() -> None:
-    found: dict[tuple[str, str], dict[str, dict]] = {}
+def shipped_tables(folder: Path) -> list[str]:
+    """Markdown: per number of views, the shipped seed's rows in `folder` (one cell per K,
+    exact depth first)."""
+    found: dict[tuple[str, str, str], dict[str, dict]] = {}
     levels = set()
-    for path in sorted(HERE.glob("*.json")):
+    for path in sorted(folder.glob("*.json")):
         match = re.fullmatch(r"(.+)-(3views|2views|1view)-k(.+)", path.stem)
         if match:
             row, views, level = match.groups()
@@ -144,15 +148,7 @@ def main() -> None:
             levels.add(level)
             found[(row, views, level)] = _families(path)
     levels = sorted(levels, key=float)
-    lines = [
-        "# Noisy depth: Table 2 test tasks",
-        "",
-        "Written by `python results/stage2/noise/noise.py` from the rows of `run.sh` and",
-        "`run_told.sh` (README.md). Each cell: blocked success (95% Wilson interval) / blocked",
-        "collisions / standard success, 200 + 200 test tasks, the shipped seed. K: the depth",
-        "noise's sd is K z^2 m at depth z; K = 0 is exact depth (the committed rows).",
-        "",
-    ]
+    lines = []
     for views in VIEWS:
         present = [row for row in ROWS if any((row, views, k) in found for k in levels)]
         if not present:
@@ -170,6 +166,20 @@ def main() -> None:
             cells += [_cell(found.get((row, views, k))) for k in levels]
             lines.append(f"| {ROWS[row]} | " + " | ".join(cells) + " |")
         lines.append("")
+    return lines
+
+
+def main() -> None:
+    lines = [
+        "# Noisy depth: Table 2 test tasks",
+        "",
+        "Written by `python results/stage2/noise/noise.py` from the rows of `run.sh` and",
+        "`run_told.sh` (README.md). Each cell: blocked success (95% Wilson interval) / blocked",
+        "collisions / standard success, 200 + 200 test tasks, the shipped seed. K: the depth",
+        "noise's sd is K z^2 m at depth z; K = 0 is exact depth (the committed rows).",
+        "",
+        *shipped_tables(HERE),
+    ]
     lines += [
         "## Over training seeds",
         "",
@@ -185,6 +195,16 @@ def main() -> None:
         "```",
         seed_summary(seed_rows(), ("blocked", "obstacles")),
         "```",
+        "",
+        "# The told rows with the sphere target test (sessions 45-46)",
+        "",
+        "Before session 47 the told map took a point for target within a sphere 3 sds of the",
+        "noise (at the target's depth) wider than its exact-depth filter; since, along the",
+        "point's ray, like the arm's and the table's tests (README.md, pilots 1 and 5). The told",
+        "rows as they ran then (`sphere/`), the same cells as above:",
+        "",
+        *(line.replace("## ", "### ") for line in shipped_tables(HERE / "sphere")),
+        *seed_table(seed_rows(HERE / "sphere")),
         "",
     ]
     (HERE / "noise.md").write_text("\n".join(lines))
