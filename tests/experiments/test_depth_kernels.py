@@ -143,3 +143,35 @@ def test_any_in_boxes_matches_the_array_test():
         points = rng.uniform(-1, 1, (rng.integers(0, 40), 3))
         expected = bool(_in_boxes(points, low, high).any()) if len(points) else False
         assert K.any_in_boxes(points, low, high) == expected
+
+
+def test_told_off_table_and_target_matches_the_array_formula():
+    """The told map's table and target tests in one pass: the same points kept and the same
+    sds, bit for bit, as the array code (the noise's sd from each point's view depth, the
+    table test along the ray, `rays_within_capsules` on the target as a capsule of no
+    length)."""
+    rng = np.random.default_rng(3)
+    views, per_view = 3, 400
+    rays = rng.normal(0, 1, (views * per_view, 3)).astype(np.float32)
+    origins = rng.uniform(-1, 1, (views, 3))
+    axes = rng.normal(0, 1, (views, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    pixels = np.sort(rng.choice(views * per_view, 900, replace=False))
+    points = rng.uniform(-0.6, 0.6, (900, 3)) + np.array([0.3, 0.0, 0.3])
+    goal = np.array([0.4, 0.1, 0.3])
+    points[:150] = goal + rng.normal(0, 0.04, (150, 3))  # some on or near the target
+    noise_m, sigmas, table, reach = 0.01, 3.0, 0.05, 0.03
+    keep, sigma = K.told_off_table_and_target(
+        points, pixels, rays, origins, axes, per_view, noise_m, sigmas, table, goal, reach
+    )
+    view = pixels // per_view
+    depth = ((points - origins[view]) * axes[view]).sum(axis=1)
+    sd = noise_m * depth * depth
+    off_table = points[:, 2] - sigmas * sd * np.abs(rays[pixels, 2]) > table
+    shifts = sigmas * sd[:, None] * rays[pixels]
+    centre = goal[None]
+    on_target = K.rays_within_capsules(points, shifts, centre, centre, np.array([reach]))
+    expected = np.flatnonzero(off_table & ~on_target)
+    assert 0 < len(expected) < len(points) and on_target[:150].sum() > 10
+    np.testing.assert_array_equal(keep, expected)
+    np.testing.assert_array_equal(sigma, sd[expected])

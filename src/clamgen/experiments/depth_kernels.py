@@ -131,6 +131,57 @@ def rays_within_capsules(
 
 
 @njit(cache=True, nogil=True)
+def told_off_table_and_target(
+    points: np.ndarray,
+    pixels: np.ndarray,
+    rays: np.ndarray,
+    view_origins: np.ndarray,
+    view_axes: np.ndarray,
+    pixels_per_view: int,
+    noise_m: float,
+    sigmas: float,
+    min_height_m: float,
+    goal: np.ndarray,
+    reach: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Of `points` (N, 3) seen at `pixels` (N,; flat indices into `rays`, the world offset per
+    metre of depth of every pixel, views one after another, `pixels_per_view` each) by
+    cameras at `view_origins` looking along `view_axes` (V, 3), those that no point within
+    `sigmas` sds of the depth noise along their ray (sd `noise_m` times the depth squared)
+    puts lower than `min_height_m` or within `reach` of `goal`: their indices (M,) and sds
+    (M,). The arithmetic of the array code it replaces (`DepthOccupancy._sigma`, the table
+    test, `rays_within_capsules` on a capsule of no length), in one pass."""
+    keep = np.empty(points.shape[0], np.int64)
+    sigma = np.empty(points.shape[0])
+    start = np.empty(3)
+    along = np.empty(3)
+    count = 0
+    for i in range(points.shape[0]):
+        view = pixels[i] // pixels_per_view
+        depth = 0.0
+        for k in range(3):
+            depth += (points[i, k] - view_origins[view, k]) * view_axes[view, k]
+        sd = noise_m * depth * depth
+        spread = sigmas * sd
+        if not points[i, 2] - spread * abs(np.float64(rays[pixels[i], 2])) > min_height_m:
+            continue
+        apart = False
+        for k in range(3):
+            shift = spread * np.float64(rays[pixels[i], k])
+            start[k] = points[i, k] - shift
+            along[k] = 2.0 * shift
+            lo, hi = min(start[k], start[k] + along[k]), max(start[k], start[k] + along[k])
+            if hi < goal[k] - reach or lo > goal[k] + reach:  # the boxes apart: too far
+                apart = True
+        if not apart and _segments_distance2(start, along, goal, np.zeros(3)) <= reach**2:
+            continue
+        keep[count] = i
+        sigma[count] = sd
+        count += 1
+    return keep[:count], sigma[:count]
+
+
+@njit(cache=True, nogil=True)
 def capsule_clearances(
     starts: np.ndarray, ends: np.ndarray, radii: np.ndarray, points: np.ndarray, cap: float
 ) -> np.ndarray:

@@ -32,6 +32,7 @@ from clamgen.experiments.depth_kernels import (
     lift_pixels,
     rays_within_capsules,
     surface_candidates,
+    told_off_table_and_target,
     within_capsules,
 )
 from clamgen.experiments.shield import checks_to, step_checks_many, step_target
@@ -88,6 +89,8 @@ DEPTH_OF_CODE = uint8_to_depth(np.arange(256, dtype=np.uint8))
 """Metric depth of each stored depth code (the same values as `uint8_to_depth`, looked up)."""
 _FAR_CLIP = np.float32(FAR_CLIP_M)
 _ABOVE_TABLE_Z = np.float32(C.TABLE_TOP_Z_M + ABOVE_TABLE_M)
+_TOLD_ABOVE_TABLE_Z = C.TABLE_TOP_Z_M + ABOVE_TABLE_M
+"""The same in float64, as the told table test compares."""
 """The lift's thresholds in float32, as its depths and heights (`lift_pixels`)."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
@@ -118,6 +121,10 @@ def warm_up() -> None:
     capsule_clearances(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.zeros(2), nothing, 0.0)
     within_capsules(nothing, box, box, np.zeros(1))
     rays_within_capsules(nothing, nothing, box, box, np.zeros(1))  # with a noise model
+    told_off_table_and_target(
+        nothing, np.empty(0, np.int64), np.zeros((1, 3), np.float32), box, box, 1, 0.0,
+        NOISE_SIGMAS, _TOLD_ABOVE_TABLE_Z, np.zeros(3), TARGET_REACH_M,
+    )  # fmt: skip
     frames = _frames(ur5.HOME_JOINTS)
     flat = np.zeros((1, 3), np.float32)
     lift_pixels(
@@ -287,7 +294,8 @@ class DepthOccupancy:
         self.origins = np.repeat(origins, height * width, axis=0)
         # Per view, the optical axis (the camera looks along its -z): a point's depth z.
         axes = -scene.data.cam_xmat[scene.camera_ids[:num_views]].reshape(-1, 3, 3)[:, :, 2]
-        self._view_origins, self._view_axes = origins.astype(np.float64), axes
+        self._view_origins = origins.astype(np.float64)
+        self._view_axes = np.ascontiguousarray(axes)
         self.shape = (num_views, height, width)
         self._dims = np.ceil((GRID_HIGH_M - GRID_LOW_M) / VOXEL_M).astype(np.int64)
         self._grid = np.zeros(int(np.prod(self._dims)), bool)
@@ -464,16 +472,21 @@ class DepthOccupancy:
         rays would put on the table (less than `ABOVE_TABLE_M` above its top) or on the target
         (within `TARGET_REACH_M` of `goal`, tested along the ray as the arm filter is:
         `rays_within_capsules`, the target a capsule of no length), and the kept points' sds
-        (`_sigma`)."""
-        sigma = self._sigma(points, pixels)
-        drop = NOISE_SIGMAS * sigma * np.abs(self.rays[pixels, 2])
-        keep = points[:, 2] - drop > C.TABLE_TOP_Z_M + ABOVE_TABLE_M
-        points, pixels, sigma = points[keep], pixels[keep], sigma[keep]
-        directions = [d[keep] for d in directions]
-        shifts = NOISE_SIGMAS * sigma[:, None] * self.rays[pixels]
-        centre = goal[None]
-        keep = ~rays_within_capsules(points, shifts, centre, centre, np.array([TARGET_REACH_M]))
-        return points[keep], pixels[keep], [d[keep] for d in directions], sigma[keep]
+        (`_sigma`), in one compiled pass (`told_off_table_and_target`)."""
+        keep, sigma = told_off_table_and_target(
+            points,
+            pixels,
+            self.rays,
+            self._view_origins,
+            self._view_axes,
+            self.shape[1] * self.shape[2],
+            self.noise_m,
+            NOISE_SIGMAS,
+            _TOLD_ABOVE_TABLE_Z,
+            goal,
+            TARGET_REACH_M,
+        )
+        return points[keep], pixels[keep], [d[keep] for d in directions], sigma
 
     def _behind(self, points: np.ndarray, directions: np.ndarray, joints: np.ndarray):
         """Cells up to `extrude_m` behind surface points along their viewing rays (an obstacle
