@@ -66,10 +66,11 @@ def run(test: str, views: int, noise_m: float, family: str) -> dict:
 
 
 def summary(lines: list[dict]) -> None:
-    totals: dict[str, list[float]] = {}
+    """Each line's blocked and standard counts and act median; per test, the blocked sums."""
+    totals: dict[str, list[int]] = {}
     for line in lines:
         success, collided = int(np.sum(line["success"])), int(np.sum(line["collided"]))
-        print(f"{line['test']:8} {line['views']} views K = {line['noise_m']:<5} "
+        print(f"{line['test']:8} {line['views']} view(s) K = {line['noise_m']:<5} "
               f"{line['family']:9}: {success} / {len(line['success'])} reached, {collided} "
               f"collided, act median {line['act_median_ms']:.2f} ms")  # fmt: skip
         if line["family"] == "blocked":
@@ -81,25 +82,27 @@ def summary(lines: list[dict]) -> None:
         print(f"{test}: blocked, summed over {rows} rows: {success} reached, {collided} collided")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--test", choices=tuple(TESTS))
+def pilot_main(doc: str, tests, views, run, out: Path) -> None:
+    """The command line of a pilot whose rows are (test, views, K, family), `run(*row)` one
+    row's JSON line, written to `out` (this pilot's and `lift_test.py`'s)."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--test", choices=tuple(tests))
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
-    lines = read_lines(OUT)
+    lines = read_lines(out)
     if not args.summary:
         torch.set_num_threads(1)
         keys = [
-            (args.test, views, noise_m, family)
-            for views in POLICIES
+            (args.test, number, noise_m, family)
+            for number in views
             for noise_m in LEVELS
             for family in COUNTS
         ]
         run_missing(
-            keys, lambda x: (x["test"], x["views"], x["noise_m"], x["family"]), run, lines, OUT
+            keys, lambda x: (x["test"], x["views"], x["noise_m"], x["family"]), run, lines, out
         )
     summary(lines)
 
 
 if __name__ == "__main__":
-    main()
+    pilot_main(__doc__, TESTS, POLICIES, run, OUT)

@@ -31,13 +31,11 @@ steps; the blocked act median; the installed code's commit).
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-import torch
-from target_test import installed_commit, read_lines, run_missing  # (the pilots' shared loop)
+from fine_test import COUNTS, pilot_main  # (this folder: the pilots' shared loop)
+from target_test import installed_commit
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
@@ -49,8 +47,6 @@ from clamgen.experiments.policies import load_policy
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "lift_test.jsonl"
 OFFSET = 510_000
-LEVELS = (0.003, 0.01)
-COUNTS = {"blocked": 100, "obstacles": 50}
 TESTS = {"grew": False, "deepest": True}
 """`DepthOccupancy(lift_deepest=...)` of each test."""
 POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
@@ -70,41 +66,5 @@ def run(test: str, views: int, noise_m: float, family: str) -> dict:
             "commit": installed_commit(), "machine": describe()}  # fmt: skip
 
 
-def summary(lines: list[dict]) -> None:
-    totals: dict[str, list[int]] = {}
-    for line in lines:
-        success, collided = int(np.sum(line["success"])), int(np.sum(line["collided"]))
-        print(f"{line['test']:8} {line['views']} view(s) K = {line['noise_m']:<5} "
-              f"{line['family']:9}: {success} / {len(line['success'])} reached, {collided} "
-              f"collided, act median {line['act_median_ms']:.2f} ms")  # fmt: skip
-        if line["family"] == "blocked":
-            total = totals.setdefault(line["test"], [0, 0, 0])
-            total[0] += success
-            total[1] += collided
-            total[2] += 1
-    for test, (success, collided, rows) in totals.items():
-        print(f"{test}: blocked, summed over {rows} rows: {success} reached, {collided} collided")
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--test", choices=tuple(TESTS))
-    parser.add_argument("--summary", action="store_true", help="only print the comparison")
-    args = parser.parse_args()
-    lines = read_lines(OUT)
-    if not args.summary:
-        torch.set_num_threads(1)
-        keys = [
-            (args.test, views, noise_m, family)
-            for views in POLICIES
-            for noise_m in LEVELS
-            for family in COUNTS
-        ]
-        run_missing(
-            keys, lambda x: (x["test"], x["views"], x["noise_m"], x["family"]), run, lines, OUT
-        )
-    summary(lines)
-
-
 if __name__ == "__main__":
-    main()
+    pilot_main(__doc__, TESTS, POLICIES, run, OUT)
