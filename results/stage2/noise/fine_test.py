@@ -48,21 +48,28 @@ LEVELS = (0.003, 0.01)
 COUNTS = {"blocked": 100, "obstacles": 50}
 TESTS = {"fine-128": 128, "fine-64": 0}
 """The shield's depth camera: 128-pixel (as shipped) or the policy's own views (0)."""
-POLICIES = {3: "residual-3views", 2: "residual-2views"}
+POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
+
+
+def evaluate_hybrid(guard, views: int, noise_m: float, family: str, offset: int) -> dict:
+    """The shipped residual of `views` views through `guard`, with depth noise `noise_m`, on
+    `COUNTS[family]` validation tasks of `family` from `offset`: the JSON line's fields but
+    the row's own (this pilot's and `lift_test.py`'s)."""
+    policy, _, env_kwargs = load_policy(POLICIES[views])
+    hybrid, env_kwargs = guard.around(policy, env_kwargs)
+    env = ReachEnv(num_obstacles=2, task_family=family, depth_noise_m=noise_m, **env_kwargs)
+    first = VALIDATION_SEEDS.start + offset
+    seeds = [int(s) for s in VALIDATION_SEEDS.seeds(COUNTS[family], first)]
+    records = evaluate(env, hybrid, seeds)
+    env.close()
+    return {"flags": list(guard.flags()), "seeds": seeds, **per_task(records),
+            "machine": describe()}  # fmt: skip
 
 
 def run(test: str, views: int, noise_m: float, family: str) -> dict:
     guard = replace(HYBRID[views], fine_depth_size=TESTS[test], noise_m=noise_m)
-    policy, _, env_kwargs = load_policy(POLICIES[views])
-    hybrid, env_kwargs = guard.around(policy, env_kwargs)
-    env = ReachEnv(num_obstacles=2, task_family=family, depth_noise_m=noise_m, **env_kwargs)
-    first = VALIDATION_SEEDS.start + OFFSET
-    seeds = [int(s) for s in VALIDATION_SEEDS.seeds(COUNTS[family], first)]
-    records = evaluate(env, hybrid, seeds)
-    env.close()
     return {"test": test, "views": views, "noise_m": noise_m, "family": family,
-            "flags": list(guard.flags()), "seeds": seeds, **per_task(records),
-            "machine": describe()}  # fmt: skip
+            **evaluate_hybrid(guard, views, noise_m, family, OFFSET)}  # fmt: skip
 
 
 def summary(lines: list[dict]) -> None:
@@ -105,4 +112,4 @@ def pilot_main(doc: str, tests, views, run, out: Path) -> None:
 
 
 if __name__ == "__main__":
-    pilot_main(__doc__, TESTS, POLICIES, run, OUT)
+    pilot_main(__doc__, TESTS, (3, 2), run, OUT)

@@ -25,6 +25,9 @@ test rows are run again with it. Otherwise this file says so and nothing changes
     python results/stage2/noise/lift_test.py --test deepest
     python results/stage2/noise/lift_test.py --summary
 
+(The runs need `DepthGuard.lift_deepest`, which only the pilot's code has: `git apply
+results/stage2/noise/lift_deepest.patch`; not adopted, main has no such field.)
+
 One JSON line per (test, views, K, family) in lift_test.jsonl (per task: success, collision,
 steps; the blocked act median; the installed code's commit).
 """
@@ -34,37 +37,24 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from fine_test import COUNTS, pilot_main  # (this folder: the pilots' shared loop)
+from fine_test import evaluate_hybrid, pilot_main  # (this folder: the pilots' shared loop)
 from target_test import installed_commit
 
-from clamgen.envs import ReachEnv
-from clamgen.experiments.config import VALIDATION_SEEDS
 from clamgen.experiments.depth_planner import HYBRID
-from clamgen.experiments.evaluate import evaluate, per_task
-from clamgen.experiments.machine import describe
-from clamgen.experiments.policies import load_policy
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "lift_test.jsonl"
 OFFSET = 510_000
 TESTS = {"grew": False, "deepest": True}
 """`DepthOccupancy(lift_deepest=...)` of each test."""
-POLICIES = {3: "residual-3views", 2: "residual-2views", 1: "residual-1view"}
 
 
 def run(test: str, views: int, noise_m: float, family: str) -> dict:
     guard = replace(HYBRID[views], noise_m=noise_m, lift_deepest=TESTS[test])
-    policy, _, env_kwargs = load_policy(POLICIES[views])
-    hybrid, env_kwargs = guard.around(policy, env_kwargs)
-    env = ReachEnv(num_obstacles=2, task_family=family, depth_noise_m=noise_m, **env_kwargs)
-    first = VALIDATION_SEEDS.start + OFFSET
-    seeds = [int(s) for s in VALIDATION_SEEDS.seeds(COUNTS[family], first)]
-    records = evaluate(env, hybrid, seeds)
-    env.close()
     return {"test": test, "views": views, "noise_m": noise_m, "family": family,
-            "flags": list(guard.flags()), "seeds": seeds, **per_task(records),
-            "commit": installed_commit(), "machine": describe()}  # fmt: skip
+            **evaluate_hybrid(guard, views, noise_m, family, OFFSET),
+            "commit": installed_commit()}  # fmt: skip
 
 
 if __name__ == "__main__":
-    pilot_main(__doc__, TESTS, POLICIES, run, OUT)
+    pilot_main(__doc__, TESTS, (3, 2, 1), run, OUT)
