@@ -175,3 +175,23 @@ def test_told_off_table_and_target_matches_the_array_formula():
     assert 0 < len(expected) < len(points) and on_target[:150].sum() > 10
     np.testing.assert_array_equal(keep, expected)
     np.testing.assert_array_equal(sigma, sd[expected])
+
+
+def test_supported_matches_a_kd_tree_ball_query():
+    """The support test on a grid: the same answer as a k-d tree's ball query (itself and
+    another within the radius, inclusive), duplicates and pairs at the radius included."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(4)
+    radius = float(np.nextafter(0.03, 0.0))
+    for _ in range(100):
+        mine = rng.uniform(-0.5, 0.5, (rng.integers(5, 300), 3)) * rng.uniform(0.05, 1.0)
+        kept = np.round(rng.uniform(-0.5, 0.5, (rng.integers(0, 300), 3)) / VOXEL_M) * VOXEL_M
+        mine[1] = mine[0]  # a duplicate
+        mine[3] = mine[2] + np.array([0.03, 0.0, 0.0])  # the radius apart: not within
+        mine[4] = mine[2] + np.array([radius, 0.0, 0.0])
+        near = cKDTree(np.concatenate([mine, kept])).query_ball_point(
+            mine, radius, return_length=True
+        )
+        np.testing.assert_array_equal(K.supported(mine, kept, radius), near >= 2)
+    assert not K.supported(np.zeros((1, 3)), np.empty((0, 3)), radius).any()  # alone

@@ -2,8 +2,9 @@
 
 The shield tests every depth pixel the arm's motion changed (about 1400 a step for three
 128-pixel views) against the arm's capsules, every configuration it checks against the
-obstacle points seen, and the points of the hand's shell against the unseen space behind
-seen surfaces (placing them by the arm's DH frames, `dh_frames`). In numpy each test is a
+obstacle points seen, the points of the hand's shell against the unseen space behind
+seen surfaces (placing them by the arm's DH frames, `dh_frames`), and each new obstacle point
+for a neighbour that supports it (`supported`, on a grid, in place of a k-d tree). In numpy each test is a
 dozen passes over (geoms, points) arrays, most of them spent on points already decided;
 these loops decide each point at its first geom within reach and skip the rest. They compute
 the same distances (in float64, point minus the nearest point of the segment, not an
@@ -179,6 +180,65 @@ def told_off_table_and_target(
         sigma[count] = sd
         count += 1
     return keep[:count], sigma[:count]
+
+
+@njit(cache=True, nogil=True)
+def supported(mine: np.ndarray, kept: np.ndarray, radius: float) -> np.ndarray:
+    """Whether each of `mine` (M, 3) has another of `mine`, or one of `kept` (K, 3), within
+    `radius` (inclusive): (M,) bool. Points are binned on a grid a little coarser than
+    `radius`, so that any two within it lie in neighbouring cells, and each of `mine` looks in
+    its 27 cells until it finds one; the squared distance summed over x, y, z in order, as a
+    k-d tree's ball query computes it."""
+    count = mine.shape[0]
+    points = np.concatenate((mine, kept))
+    total = points.shape[0]
+    out = np.zeros(count, np.bool_)
+    if count == 0:
+        return out
+    low = points[0].copy()
+    for i in range(total):
+        for k in range(3):
+            low[k] = min(low[k], points[i, k])
+    scale = 1.0 / (radius * (1.0 + 1e-6))
+    cells = np.empty((total, 3), np.int64)
+    dims = np.ones(3, np.int64)
+    for i in range(total):
+        for k in range(3):
+            cells[i, k] = int(np.floor((points[i, k] - low[k]) * scale))
+            dims[k] = max(dims[k], cells[i, k] + 1)
+    keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    reach2 = radius * radius
+    for i in range(count):
+        found = False
+        for dx in range(-1, 2):
+            x = cells[i, 0] + dx
+            if x < 0 or x >= dims[0] or found:
+                continue
+            for dy in range(-1, 2):
+                y = cells[i, 1] + dy
+                if y < 0 or y >= dims[1] or found:
+                    continue
+                for dz in range(-1, 2):
+                    z = cells[i, 2] + dz
+                    if z < 0 or z >= dims[2] or found:
+                        continue
+                    key = (x * dims[1] + y) * dims[2] + z
+                    j = np.searchsorted(sorted_keys, key)
+                    while j < total and sorted_keys[j] == key:
+                        other = order[j]
+                        if other != i:
+                            distance2 = 0.0
+                            for k in range(3):
+                                d = mine[i, k] - points[other, k]
+                                distance2 += d * d
+                            if distance2 <= reach2:
+                                found = True
+                                break
+                        j += 1
+        out[i] = found
+    return out
 
 
 @njit(cache=True, nogil=True)

@@ -21,7 +21,6 @@ from typing import Any
 
 import mujoco
 import numpy as np
-from scipy.spatial import cKDTree
 
 from clamgen.experiments.depth_kernels import (
     any_in_boxes,
@@ -31,6 +30,7 @@ from clamgen.experiments.depth_kernels import (
     hidden_points,
     lift_pixels,
     rays_within_capsules,
+    supported,
     surface_candidates,
     told_off_table_and_target,
     within_capsules,
@@ -65,6 +65,8 @@ PEDESTAL_TOP_M = 0.01
 SUPPORT_RADIUS_M = 0.03
 """A new obstacle point counts only with another obstacle point (new or kept) within this:
 a lone pixel is not a surface (the renderer leaves a rare stray pixel)."""
+_SUPPORT_REACH = float(np.nextafter(SUPPORT_RADIUS_M, 0.0))
+"""The support test's radius: points strictly nearer than `SUPPORT_RADIUS_M` support."""
 FAR_CLIP_M = C.DEPTH_RANGE_M[1] - 0.05
 """Depth at or beyond the stored range's far end is background."""
 MARGIN_M = 0.01
@@ -121,6 +123,7 @@ def warm_up() -> None:
     capsule_clearances(np.zeros((1, 2, 3)), np.zeros((1, 2, 3)), np.zeros(2), nothing, 0.0)
     within_capsules(nothing, box, box, np.zeros(1))
     rays_within_capsules(nothing, nothing, box, box, np.zeros(1))  # with a noise model
+    supported(nothing, nothing, _SUPPORT_REACH)
     told_off_table_and_target(
         nothing, np.empty(0, np.int64), np.zeros((1, 3), np.float32), box, box, 1, 0.0,
         NOISE_SIGMAS, _TOLD_ABOVE_TABLE_Z, np.zeros(3), TARGET_REACH_M,
@@ -399,15 +402,11 @@ class DepthOccupancy:
         if len(index):
             mine = points[index]
             low, high = mine.min(axis=0) - SUPPORT_RADIUS_M, mine.max(axis=0) + SUPPORT_RADIUS_M
-            kept = self.points[_in_boxes(self.points, low, high)]
-            others = np.concatenate([mine, kept])  # (kept points farther out support none)
-            # Points within the radius (strictly: the largest float below it, inclusive), by
-            # a k-d tree: the steps with many new points have thousands.
-            near = cKDTree(others).query_ball_point(
-                mine, np.nextafter(SUPPORT_RADIUS_M, 0.0), return_length=True
-            )
-            supported = near >= 2  # (itself and another)
-            index, cells = index[supported], cells[supported]
+            kept = self.points[_in_boxes(self.points, low, high)]  # (farther out: none near)
+            # Another point within the radius (strictly: the largest float below it,
+            # inclusive), on a grid: the steps with many new points have thousands.
+            near = supported(mine, kept, _SUPPORT_REACH)
+            index, cells = index[near], cells[near]
         if len(index) == 0:
             return cells
         if self.extrude_m > 0:
