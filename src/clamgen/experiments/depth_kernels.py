@@ -4,11 +4,11 @@ The shield tests every depth pixel the arm's motion changed (about 1400 a step f
 128-pixel views) against the arm's capsules, every configuration it checks against the
 obstacle points seen, the points of the hand's shell against the unseen space behind
 seen surfaces (placing them by the arm's DH frames, `dh_frames`), and each new obstacle point
-for a neighbour that supports it (`supported`, on a grid, in place of a k-d tree). In numpy each test is a
-dozen passes over (geoms, points) arrays, most of them spent on points already decided;
-these loops decide each point at its first geom within reach and skip the rest. They compute
-the same distances (in float64, point minus the nearest point of the segment, not an
-expanded square), so the shield's decisions are those of the array code except within
+for a neighbour that supports it (`supported`, on a grid, in place of a k-d tree). In numpy
+each test is a dozen passes over (geoms, points) arrays, most of them spent on points already
+decided; these loops decide each point at its first geom within reach and skip the rest.
+They compute the same distances (in float64, point minus the nearest point of the segment, not
+an expanded square), so the shield's decisions are those of the array code except within
 rounding of a threshold.
 
 Compiled on first use (about a second each) and cached beside this file.
