@@ -150,12 +150,13 @@ def told_off_table_and_target(
     cameras at `view_origins` looking along `view_axes` (V, 3), those that no point within
     `sigmas` sds of the depth noise along their ray (sd `noise_m` times the depth squared)
     puts lower than `min_height_m` or within `reach` of `goal`: their indices (M,) and sds
-    (M,). The arithmetic of the array code it replaces (`DepthOccupancy._sigma`, the table
-    test, `rays_within_capsules` on a capsule of no length), in one pass."""
+    (M,). The arithmetic of the array code it replaces (each point's depth along its view's
+    axis, the table test, `rays_within_capsules` on a capsule of no length), in one pass."""
     keep = np.empty(points.shape[0], np.int64)
     sigma = np.empty(points.shape[0])
     start = np.empty(3)
     along = np.empty(3)
+    no_length = np.zeros(3)  # the target as a capsule
     count = 0
     for i in range(points.shape[0]):
         view = pixels[i] // pixels_per_view
@@ -174,12 +175,44 @@ def told_off_table_and_target(
             lo, hi = min(start[k], start[k] + along[k]), max(start[k], start[k] + along[k])
             if hi < goal[k] - reach or lo > goal[k] + reach:  # the boxes apart: too far
                 apart = True
-        if not apart and _segments_distance2(start, along, goal, np.zeros(3)) <= reach**2:
+        if not apart and _segments_distance2(start, along, goal, no_length) <= reach**2:
             continue
         keep[count] = i
         sigma[count] = sd
         count += 1
     return keep[:count], sigma[:count]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _neighbour_near(
+    i: int,
+    mine: np.ndarray,
+    points: np.ndarray,
+    cells: np.ndarray,
+    dims: np.ndarray,
+    sorted_keys: np.ndarray,
+    order: np.ndarray,
+    radius: float,
+) -> bool:
+    """Whether a point of `points` but the i-th lies within `radius` of `mine[i]`, looked for
+    in the 27 grid cells around its own (`supported`'s grid: `cells`, `dims`, the cells' keys
+    sorted with their points' `order`)."""
+    for x in range(max(cells[i, 0] - 1, 0), min(cells[i, 0] + 2, dims[0])):
+        for y in range(max(cells[i, 1] - 1, 0), min(cells[i, 1] + 2, dims[1])):
+            for z in range(max(cells[i, 2] - 1, 0), min(cells[i, 2] + 2, dims[2])):
+                key = (x * dims[1] + y) * dims[2] + z
+                j = np.searchsorted(sorted_keys, key)
+                while j < sorted_keys.shape[0] and sorted_keys[j] == key:
+                    other = order[j]
+                    if other != i:
+                        distance2 = 0.0
+                        for k in range(3):
+                            d = mine[i, k] - points[other, k]
+                            distance2 += d * d
+                        if distance2 <= radius * radius:
+                            return True
+                    j += 1
+    return False
 
 
 @njit(cache=True, nogil=True)
@@ -209,35 +242,8 @@ def supported(mine: np.ndarray, kept: np.ndarray, radius: float) -> np.ndarray:
     keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
     order = np.argsort(keys)
     sorted_keys = keys[order]
-    reach2 = radius * radius
     for i in range(count):
-        found = False
-        for dx in range(-1, 2):
-            x = cells[i, 0] + dx
-            if x < 0 or x >= dims[0] or found:
-                continue
-            for dy in range(-1, 2):
-                y = cells[i, 1] + dy
-                if y < 0 or y >= dims[1] or found:
-                    continue
-                for dz in range(-1, 2):
-                    z = cells[i, 2] + dz
-                    if z < 0 or z >= dims[2] or found:
-                        continue
-                    key = (x * dims[1] + y) * dims[2] + z
-                    j = np.searchsorted(sorted_keys, key)
-                    while j < total and sorted_keys[j] == key:
-                        other = order[j]
-                        if other != i:
-                            distance2 = 0.0
-                            for k in range(3):
-                                d = mine[i, k] - points[other, k]
-                                distance2 += d * d
-                            if distance2 <= reach2:
-                                found = True
-                                break
-                        j += 1
-        out[i] = found
+        out[i] = _neighbour_near(i, mine, points, cells, dims, sorted_keys, order, radius)
     return out
 
 

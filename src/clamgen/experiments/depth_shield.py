@@ -91,9 +91,9 @@ DEPTH_OF_CODE = uint8_to_depth(np.arange(256, dtype=np.uint8))
 """Metric depth of each stored depth code (the same values as `uint8_to_depth`, looked up)."""
 _FAR_CLIP = np.float32(FAR_CLIP_M)
 _ABOVE_TABLE_Z = np.float32(C.TABLE_TOP_Z_M + ABOVE_TABLE_M)
+"""The lift's thresholds in float32, as its depths and heights (`lift_pixels`)."""
 _TOLD_ABOVE_TABLE_Z = C.TABLE_TOP_Z_M + ABOVE_TABLE_M
 """The same in float64, as the told table test compares."""
-"""The lift's thresholds in float32, as its depths and heights (`lift_pixels`)."""
 GRID_LOW_M = np.array([-1.0, -1.0, C.TABLE_TOP_Z_M])
 GRID_HIGH_M = np.array([1.5, 1.0, 1.2])
 """The voxel grid's bounds (the table's top and the workspace above it); points outside are
@@ -445,24 +445,14 @@ class DepthOccupancy:
     ) -> np.ndarray:
         """Which of `points` lie farther than `ARM_FILTER_M` from the arm at `joints` (the test
         runs on every pixel the arm's motion changed: compiled, `within_capsules`); with a
-        noise model, at every point up to `NOISE_SIGMAS` sds along their rays (`pixels`; their
-        sds `sigma` if known, else `_sigma`)."""
+        noise model, given their `pixels` and noise sds `sigma` (`_off_table_and_target`), at
+        every point up to `NOISE_SIGMAS` sds along their rays."""
         starts, ends = self.arm.segments(joints)
         reach = self.arm.radii + ARM_FILTER_M
-        if self.noise_m <= 0 or pixels is None:
+        if self.noise_m <= 0 or sigma is None:
             return ~within_capsules(points, starts, ends, reach)
-        if sigma is None:
-            sigma = self._sigma(points, pixels)
         shifts = NOISE_SIGMAS * sigma[:, None] * self.rays[pixels]  # P, 3
         return ~rays_within_capsules(points, shifts, starts, ends, reach)
-
-    def _sigma(self, points: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-        """The noise model's sd of the depth (m) of `points` seen at `pixels`: `noise_m`
-        times their depth squared (a depth error d moves a point by d times its pixel's
-        `rays`)."""
-        view = pixels // (self.shape[1] * self.shape[2])
-        depth = ((points - self._view_origins[view]) * self._view_axes[view]).sum(axis=1)
-        return self.noise_m * depth * depth
 
     def _off_table_and_target(
         self, points: np.ndarray, pixels: np.ndarray, directions: list, goal: np.ndarray
@@ -470,8 +460,9 @@ class DepthOccupancy:
         """`points`, `pixels` and `directions` but those that `NOISE_SIGMAS` sds along their
         rays would put on the table (less than `ABOVE_TABLE_M` above its top) or on the target
         (within `TARGET_REACH_M` of `goal`, tested along the ray as the arm filter is:
-        `rays_within_capsules`, the target a capsule of no length), and the kept points' sds
-        (`_sigma`), in one compiled pass (`told_off_table_and_target`)."""
+        `rays_within_capsules`, the target a capsule of no length), and the kept points' noise
+        sds (`noise_m` times their view depth squared: a depth error d moves a point by d times
+        its pixel's `rays`), in one compiled pass (`told_off_table_and_target`)."""
         keep, sigma = told_off_table_and_target(
             points,
             pixels,
