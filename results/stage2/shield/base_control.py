@@ -6,11 +6,13 @@ protocol in README.md, "Session 42").
 
 Reads the committed Table 2 files (`results/table2/`): the shipped residual of each number of
 views (seed 5) alone and through each wrapper, the base alone and through the same wrappers
-(`clamgen eval --table 2 --policy base --depth-views V ...`), and where it was run no policy
-inside the wrapper (`hold_control.py`). Writes
+(`clamgen eval --table 2 --policy base --depth-views V ...`), where it was run no policy
+inside the wrapper (`hold_control.py`), and where it was run obstacle-blind IK interpolation
+through the same wrapper (`ik_control.sh`, session 48). Writes
 `base_control.md` beside this file: per wrapper and task family, each row's success,
 collision rate and act times, and task by task how many tasks only the residual's row solves
-and how many only the base's, with the exact two-sided sign test on those.
+and how many only the base's (and only IK interpolation's), with the exact two-sided sign
+test on those.
 """
 
 from __future__ import annotations
@@ -62,6 +64,21 @@ def cell(row: dict) -> str:
     return text + (f" (p99 {row['act_p99_ms']:.1f})" if "act_p99_ms" in row else "")
 
 
+def control(base_path: Path, kind: str) -> dict[str, dict] | None:
+    """The rows of the control `kind` ("hold", "ik") beside the base's row file, if run; acting
+    alone, IK interpolation's own Table 2 row (`ik.json`), and no row for holding still."""
+    if not base_path.name.startswith("base_through_"):
+        path = base_path.with_name(f"{kind}.json") if kind == "ik" else None
+    else:
+        path = base_path.with_name(base_path.name.replace("base_through_", f"{kind}_through_"))
+    return rows(path) if path is not None and path.exists() else None
+
+
+def paired(first: dict, second: dict) -> str:
+    pair = paired_count(first["task_success"], second["task_success"])
+    return f"{pair.first_only} / {pair.second_only} ({pair.p_value:.2g})"
+
+
 def main() -> None:
     lines = [
         "# The residual's base (no vision) through the same depth wrappers (session 42)",
@@ -72,27 +89,29 @@ def main() -> None:
         "collision rate / median act ms (99th percentile). Task by task: tasks only the",
         "residual's row solves / only the base's, and the exact two-sided sign test on them.",
         "",
-        "The last column, where it was run (`hold_control.py`): no policy at all, the arm",
-        "holding still inside the wrapper, so the wrapper alone acts.",
+        "The column \"no policy\", where it was run (`hold_control.py`): the arm holding still",
+        "inside the wrapper, so the wrapper alone acts. The last two, where they were run",
+        "(`ik_control.sh`, session 48): obstacle-blind IK interpolation (no vision, no",
+        "learning) as the policy inside the same wrapper, and the tasks only the residual's /",
+        "only IK interpolation's row solves.",
         "",
         "| views | acting | family | shipped residual | base (no vision) "
-        "| only residual / only base (P) | no policy |",
-        "|---|---|---|---|---|---|---|",
+        "| only residual / only base (P) | no policy | IK interpolation "
+        "| only residual / only IK (P) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]  # fmt: skip
     for views, how, residual_path, base_path in PAIRS:
         if not base_path.exists():
             print(f"missing {base_path.name}: not run yet")
             continue
         residual, base = rows(residual_path), rows(base_path)
-        hold_path = base_path.with_name(base_path.name.replace("base_through_", "hold_through_"))
-        hold = rows(hold_path) if hold_path.exists() else None
+        hold, ik = control(base_path, "hold"), control(base_path, "ik")
         for family in ("obstacles", "blocked"):
-            pair = paired_count(residual[family]["task_success"], base[family]["task_success"])
+            mine = residual[family]
             lines.append(
-                f"| {views} | {WORDS[how]} | {family} | {cell(residual[family])} | "
-                f"{cell(base[family])} | {pair.first_only} / {pair.second_only} "
-                f"({pair.p_value:.2g}) | "
-                f"{cell(hold[family]) if hold else '-'} |"
+                f"| {views} | {WORDS[how]} | {family} | {cell(mine)} | {cell(base[family])} | "
+                f"{paired(mine, base[family])} | {cell(hold[family]) if hold else '-'} | "
+                f"{cell(ik[family]) if ik else '-'} | {paired(mine, ik[family]) if ik else '-'} |"
             )
     write_markdown(lines, HERE / "base_control.md")
 
