@@ -132,9 +132,14 @@ base --depth-views V ...`, `../shield/hold_control.py`; session 42;
 `results/table2/<who>_through_<stem>_<views>.json`). One run each: no training seed."""
 
 
-CONTROLS = {"base": "the base (no vision)", "hold": "no policy (the arm holds still)"}
-"""Who acts in the control rows: the residual's base (`base_through_*`), or nothing
-(`hold_through_*`, `../shield/hold_control.py`: the wrapper alone acts)."""
+CONTROLS = {
+    "base": "the base (no vision)",
+    "hold": "no policy (the arm holds still)",
+    "ik": "obstacle-blind IK interpolation",
+}
+"""Who acts in the control rows: the residual's base (`base_through_*`), nothing
+(`hold_through_*`, `../shield/hold_control.py`: the wrapper alone acts), or IK interpolation
+(`ik_through_*`, `../shield/ik_control.sh`, session 48)."""
 
 
 def control_rows(views: int, kind: str) -> list[tuple[str, Path]]:

@@ -776,7 +776,8 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
             )
             for r in rows
         ]
-    if stem == "act_latency":
+    if stem.startswith("act_latency"):
+        condition = _act_latency_condition(stem)
         reference = _reference_row(rows, "ratio_to_reference")
         entries = []
         for r in rows:
@@ -785,7 +786,8 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
             ratio = _f(r, "ratio_to_reference")
             entries.append(
                 SpeedEntry(
-                    f"acting time per step of `{r['policy']}` (batch 1, one core; aim < 2 ms)",
+                    f"acting time per step of `{r['policy']}` (batch 1, one core; aim < 2 ms)"
+                    + condition,
                     f"{float(r['median_ms']):.2f} ms median, p95 {float(r['p95_ms']):.2f} ms",
                     "the RL-trained 2-view vision residual (the paper's method), same run",
                     "-" if reference is None else f"{float(reference['median_ms']):.2f} ms",
@@ -875,6 +877,20 @@ def _describe(stem: str, rows: list[dict], source: str) -> list[SpeedEntry]:
         )
         for r in rows
     ]
+
+
+def _act_latency_condition(stem: str) -> str:
+    """What an `act_latency` CSV's name adds to its measurement (`benchmarks/act_latency.py`
+    writes `act_latency[_in_episodes][_noise_k<K>]`, K's point as "p"): "" for the plain one."""
+    words = []
+    rest = stem.removeprefix("act_latency")
+    if rest.startswith("_in_episodes"):
+        words.append("timed in live episodes")
+        rest = rest.removeprefix("_in_episodes")
+    if rest.startswith("_noise_k"):
+        noise = rest.removeprefix("_noise_k").replace("p", ".")
+        words.append(f"depth noise sd {noise} z^2 m, shields told it")
+    return "".join(f", {word}" for word in words)
 
 
 def _concurrent_job(r: dict, source: str) -> SpeedEntry:
