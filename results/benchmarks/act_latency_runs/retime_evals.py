@@ -3,6 +3,8 @@
     python results/benchmarks/act_latency_runs/retime_evals.py [--rows 3v-escapes ...] \
         --out results/benchmarks/act_latency_runs/retimed_<machine>
 
+(`--rows 3v-hybrid-told-k0p01 ...`: the rows on noisy depth, `TOLD_ROWS`.)
+
 Each row's committed Table 2 evaluation (the shipped students, seed 5) runs again with its own
 command, one process at a time (run it with nothing else on the machine), into `--out`. The
 act medians are this machine's, timed between rendered steps as `clamgen eval` times them; the
@@ -41,6 +43,17 @@ ROWS = {
 }
 """Row: (its committed evaluation, the shipped name to act under where its command names a
 run directory's policy file)."""
+TOLD_ROWS = {
+    f"{views[0]}v-{row}-told-k{level}": (
+        f"results/stage2/noise/{row}-told-{views}-k{level}.json",
+        None,
+    )
+    for level in ("0p003", "0p01")
+    for row in ("hybrid", "escapes")
+    for views in ("3views", "2views", "1view")
+}
+"""The same for the shipped seed's rows on noisy depth, the wrappers told the noise (session
+47's `run_told.sh`; `--rows` names them, the default is the exact-depth rows above)."""
 
 
 def command(committed: dict, policy: str | None, out: Path) -> list[str]:
@@ -55,7 +68,7 @@ def command(committed: dict, policy: str | None, out: Path) -> list[str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rows", nargs="+", choices=list(ROWS), default=list(ROWS))
+    parser.add_argument("--rows", nargs="+", choices=[*ROWS, *TOLD_ROWS], default=list(ROWS))
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -68,7 +81,7 @@ def main() -> None:
         "|---|---|---|---|---|---|",
     ]
     for name in args.rows:
-        path, policy = ROWS[name]
+        path, policy = (ROWS | TOLD_ROWS)[name]
         committed = json.loads((ROOT / path).read_text())
         out = args.out / name
         run = command(committed, policy, out)
