@@ -448,10 +448,20 @@ def test_render_demo_view_and_export_refuse_a_negative_seed(workdir):
     assert "--seed must be >= 0, got -3" in refused(workdir, "view", "--seed", "-3")
 
 
+def test_counts_below_one_are_refused_by_their_flag(workdir):
+    assert "--num-tasks must be >= 1, got 0" in refused(
+        workdir, "eval", "--table", "2", "--policy", "ik", "--num-tasks", "0"
+    )
+    assert "--num-episodes must be >= 1, got 0" in refused(workdir, "demo", "--num-episodes", "0")
+    flags = ("--policy", "ik", "--num-episodes", "0")
+    assert "--num-episodes must be >= 1, got 0" in refused(workdir, "render", *flags)
+    assert "--fps must be >= 1, got 0" in refused(workdir, "render", "--policy", "ik", "--fps", "0")
+
+
 def test_render_refuses_a_bad_outcome_search(workdir):
     flags = ("--outcome", "failure", "--num-episodes", "2", "--max-tries", "1")
     message = refused(workdir, "render", "--policy", "ik", *flags)
-    assert "max_tries (1) must be >= num_episodes (2)" in message
+    assert "--max-tries (1) must be >= --num-episodes (2)" in message
 
 
 def test_eval_rrt_on_table1_says_how_it_plans(workdir, capsys):

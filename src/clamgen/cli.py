@@ -94,7 +94,7 @@ def demo(config: DemoConfig) -> dict:
     if config.env_id not in ENV_IDS:
         raise SystemExit(f"unknown env_id {config.env_id!r}; choose one of {ENV_IDS}")
     if config.num_episodes < 1:
-        raise SystemExit("num_episodes must be >= 1")
+        raise SystemExit(f"--num-episodes must be >= 1, got {config.num_episodes}")
     _check_task_seed(config.seed)
     config.out_dir.mkdir(parents=True, exist_ok=True)
     env = gym.make(
@@ -538,7 +538,7 @@ def evaluate_table(config: EvalConfig) -> list:
     except ValueError as error:
         raise SystemExit(f"bad --target-speed: {error}") from error
     if config.num_tasks < 1:
-        raise SystemExit("num_tasks must be >= 1")
+        raise SystemExit(f"--num-tasks must be >= 1, got {config.num_tasks}")
     try:
         check_table_seeds(config.first_seed, config.num_tasks)
     except ValueError as error:
@@ -547,7 +547,7 @@ def evaluate_table(config: EvalConfig) -> list:
     if unknown or not config.families:
         raise SystemExit(f"--families must be among {TABLE2_FAMILIES}, got {config.families}")
     if config.torch_threads < 1:
-        raise SystemExit("torch_threads must be >= 1")
+        raise SystemExit(f"--torch-threads must be >= 1, got {config.torch_threads}")
     import torch
 
     torch.set_num_threads(config.torch_threads)

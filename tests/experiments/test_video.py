@@ -84,7 +84,7 @@ def test_render_without_the_outcome_asked_for_writes_nothing(tmp_path):
     with pytest.raises(ValueError, match=r"none of the 2 tasks from seed \d+ ended in failure"):
         render_rollouts(config, IKInterpolationPolicy(), "ik")
     assert not list(tmp_path.iterdir())
-    with pytest.raises(ValueError, match="max_tries"):
+    with pytest.raises(ValueError, match="--max-tries"):
         render_rollouts(replace(config, max_tries=0), IKInterpolationPolicy(), "ik")
 
 

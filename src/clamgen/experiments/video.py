@@ -241,14 +241,16 @@ Episode = Callable[[int, str], tuple[dict, list[np.ndarray], list[np.ndarray]]]
 
 
 def _check_counts(config: RenderConfig) -> None:
-    if config.num_episodes < 1 or config.fps < 1:
-        raise ValueError("num_episodes and fps must be >= 1")
+    if config.num_episodes < 1:
+        raise ValueError(f"--num-episodes must be >= 1, got {config.num_episodes}")
+    if config.fps < 1:
+        raise ValueError(f"--fps must be >= 1, got {config.fps}")
     check_task_seed(config.seed)
     if config.outcome not in ("any", "success", "failure"):
         raise ValueError(f"outcome must be any, success or failure, got {config.outcome!r}")
     if config.outcome != "any" and config.max_tries < config.num_episodes:
         raise ValueError(
-            f"max_tries ({config.max_tries}) must be >= num_episodes ({config.num_episodes})"
+            f"--max-tries ({config.max_tries}) must be >= --num-episodes ({config.num_episodes})"
         )
 
 
