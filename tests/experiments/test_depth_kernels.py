@@ -29,19 +29,20 @@ def _segment_distance(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) 
     return np.sqrt(np.maximum(squared, 0.0))
 
 
-def _segments(rng, count):
+def _capsules_and_points(seed, num_points, count=8):
+    """A random generator, `count` capsules (axis starts and ends, reach; the first a sphere)
+    and `num_points` points around them."""
+    rng = np.random.default_rng(seed)
     starts = rng.uniform(-0.5, 0.5, (count, 3))
     ends = starts + rng.normal(0.0, 0.1, (count, 3))
     ends[0] = starts[0]  # a degenerate segment (a sphere)
-    return starts, ends
+    reach = rng.uniform(0.02, 0.1, count)
+    return rng, starts, ends, reach, rng.uniform(-0.7, 0.7, (num_points, 3))
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_within_capsules_matches_distances(seed):
-    rng = np.random.default_rng(seed)
-    starts, ends = _segments(rng, 8)
-    reach = rng.uniform(0.02, 0.1, 8)
-    points = rng.uniform(-0.7, 0.7, (3000, 3))
+    _, starts, ends, reach, points = _capsules_and_points(seed, 3000)
     gap = _segment_distance(points, starts, ends) - reach
     expected = (gap <= 0).any(axis=1)
     decided = np.abs(gap).min(axis=1) > 1e-9  # (rounding may decide a point on a surface)
@@ -52,10 +53,7 @@ def test_within_capsules_matches_distances(seed):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_rays_within_capsules_match_densely_sampled_segments(seed):
-    rng = np.random.default_rng(seed)
-    starts, ends = _segments(rng, 8)
-    reach = rng.uniform(0.02, 0.1, 8)
-    points = rng.uniform(-0.7, 0.7, (2000, 3))
+    rng, starts, ends, reach, points = _capsules_and_points(seed, 2000)
     shifts = rng.normal(0.0, 0.05, (2000, 3))
     shifts[:100] = 0.0  # no uncertainty: the points' own test
     # Dense samples along each segment; a margin either side of the reach for what they miss.
