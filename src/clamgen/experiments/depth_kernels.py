@@ -30,6 +30,16 @@ def _in_box(points: np.ndarray, i: int, low: np.ndarray, high: np.ndarray) -> bo
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _distance2(points: np.ndarray, i: int, others: np.ndarray, j: int) -> float:
+    """Squared distance of point i of `points` to point j of `others`, summed over x, y, z in
+    order."""
+    d0 = points[i, 0] - others[j, 0]
+    d1 = points[i, 1] - others[j, 1]
+    d2 = points[i, 2] - others[j, 2]
+    return d0 * d0 + d1 * d1 + d2 * d2
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _segment_distance2(
     points: np.ndarray, i: int, start: np.ndarray, axis: np.ndarray, length2: float
 ) -> float:
@@ -204,13 +214,8 @@ def _neighbour_near(
                 j = np.searchsorted(sorted_keys, key)
                 while j < sorted_keys.shape[0] and sorted_keys[j] == key:
                     other = order[j]
-                    if other != i:
-                        distance2 = 0.0
-                        for k in range(3):
-                            d = mine[i, k] - points[other, k]
-                            distance2 += d * d
-                        if distance2 <= radius * radius:
-                            return True
+                    if other != i and _distance2(mine, i, points, other) <= radius * radius:
+                        return True
                     j += 1
     return False
 
@@ -425,10 +430,7 @@ def _filled(points: np.ndarray, i: int, filled: tuple) -> bool:
 def _near_any(points: np.ndarray, i: int, others: np.ndarray, near2: float) -> bool:
     """Whether any of `others` (P, 3) lies nearer than sqrt(`near2`) to point i of `points`."""
     for j in range(others.shape[0]):
-        d0 = points[i, 0] - others[j, 0]
-        d1 = points[i, 1] - others[j, 1]
-        d2 = points[i, 2] - others[j, 2]
-        if d0 * d0 + d1 * d1 + d2 * d2 < near2:
+        if _distance2(points, i, others, j) < near2:
             return True
     return False
 
