@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from target_test import read_lines, run_missing  # (this folder: the pilots' shared loop)
+from target_test import installed_commit, read_lines, run_missing  # (this folder's pilots)
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.config import VALIDATION_SEEDS
@@ -66,10 +66,18 @@ def evaluate_hybrid(guard, views: int, noise_m: float, family: str, offset: int)
             "machine": describe()}  # fmt: skip
 
 
+def pilot_line(test: str, views: int, noise_m: float, family: str, guard, offset: int) -> dict:
+    """One row's JSON line of a pilot whose rows are (test, views, K, family) and whose tests
+    differ in `guard`: the row, `evaluate_hybrid`'s fields and the installed code's commit
+    (this pilot's, `lift_test.py`'s and `own_views_test.py`'s)."""
+    return {"test": test, "views": views, "noise_m": noise_m, "family": family,
+            **evaluate_hybrid(guard, views, noise_m, family, offset),
+            "commit": installed_commit()}  # fmt: skip
+
+
 def run(test: str, views: int, noise_m: float, family: str) -> dict:
     guard = replace(HYBRID[views], fine_depth_size=TESTS[test], noise_m=noise_m)
-    return {"test": test, "views": views, "noise_m": noise_m, "family": family,
-            **evaluate_hybrid(guard, views, noise_m, family, OFFSET)}  # fmt: skip
+    return pilot_line(test, views, noise_m, family, guard, OFFSET)
 
 
 def summary(lines: list[dict]) -> None:

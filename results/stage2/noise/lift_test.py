@@ -37,8 +37,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from fine_test import evaluate_hybrid, pilot_main  # (this folder: the pilots' shared loop)
-from target_test import installed_commit
+from fine_test import pilot_line, pilot_main  # (this folder: the pilots' shared loop)
 
 from clamgen.experiments.depth_planner import HYBRID
 
@@ -51,9 +50,7 @@ TESTS = {"grew": False, "deepest": True}
 
 def run(test: str, views: int, noise_m: float, family: str) -> dict:
     guard = replace(HYBRID[views], noise_m=noise_m, lift_deepest=TESTS[test])
-    return {"test": test, "views": views, "noise_m": noise_m, "family": family,
-            **evaluate_hybrid(guard, views, noise_m, family, OFFSET),
-            "commit": installed_commit()}  # fmt: skip
+    return pilot_line(test, views, noise_m, family, guard, OFFSET)
 
 
 if __name__ == "__main__":

@@ -35,8 +35,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from fine_test import evaluate_hybrid, pilot_main
-from target_test import installed_commit
+from fine_test import pilot_line, pilot_main
 
 from clamgen.experiments.depth_planner import HYBRID
 
@@ -49,9 +48,7 @@ TESTS = {"cameras-128": 128, "own-64": 0}
 
 def run(test: str, views: int, noise_m: float, family: str) -> dict:
     guard = replace(HYBRID[views], fine_depth_size=TESTS[test], noise_m=noise_m)
-    return {"test": test, "views": views, "noise_m": noise_m, "family": family,
-            **evaluate_hybrid(guard, views, noise_m, family, OFFSET),
-            "commit": installed_commit()}  # fmt: skip
+    return pilot_line(test, views, noise_m, family, guard, OFFSET)
 
 
 if __name__ == "__main__":
