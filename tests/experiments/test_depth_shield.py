@@ -427,7 +427,7 @@ def test_the_planner_learns_its_latency_only_from_steps_held_after_a_plan():
     env.close()
 
 
-def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
+def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path, capsys):
     """`--policy depth-rrt-<V>views`: the hybrid's shield and planner of V views around a held
     arm, planning first, on V rendered views; no other depth option goes with it."""
     pytest.importorskip("ompl.base")
@@ -508,14 +508,19 @@ def test_the_depth_rrt_baselines_are_policies_by_name(tmp_path):
     assert row["real_time"] and len(row["task_held_steps"]) == 2
     held_and_steps = zip(row["task_held_steps"], row["task_steps"], strict=True)
     assert all(0 <= held < steps for held, steps in held_and_steps)
-    # --depth-noise-m: the views' depth noisy, the row says so and records it.
+    # --depth-noise-m: the views' depth noisy, the row says so and records it; untold, a note
+    # says what the map assumes.
     out = tmp_path / "depth_rrt_noisy"
+    capsys.readouterr()
     main(["eval", *args, "--depth-noise-m", "0.002", "--num-tasks", "1", "--out", str(out)])
+    untold = "note: --depth-noise-m without --depth-noise-model-m: the depth map assumes exact"
+    assert untold in capsys.readouterr().out
     row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
     assert row["name"].endswith("no learned policy (ours), depth noise sd 0.002*z^2 m")
     assert row["depth_noise_m"] == 0.002
     told = ["--depth-noise-model-m", "0.002", "--depth-noise-m", "0.002", "--num-tasks", "1"]
     main(["eval", *args, *told, "--out", str(out), "--overwrite"])
+    assert untold not in capsys.readouterr().out
     row = json.loads(out.with_suffix(".json").read_text())["rows"][0]
     assert row["name"].endswith(
         "(ours), depth noise model sd 0.002*z^2 m, depth noise sd 0.002*z^2 m"
@@ -830,6 +835,19 @@ def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
         config = tyro.cli(EvalConfig, args=["--table", "2", *args])
         with pytest.raises(SystemExit, match=message):
             _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
+
+
+def test_a_depth_wrapper_reading_noisy_depth_untold_says_what_its_map_assumes(capsys):
+    from clamgen.cli import _check_depth_request
+
+    for args, noted in (
+        (["--depth-hybrid", "--depth-noise-m", "0.01"], True),
+        (["--depth-escapes", "--depth-noise-m", "0.01", "--depth-noise-model-m", "0.01"], False),
+        (["--depth-noise-m", "0.01"], False),  # the policy alone: no map
+        (["--depth-hybrid"], False),
+    ):
+        _check_depth_request(tyro.cli(EvalConfig, args=["--table", "2", *args]))
+        assert ("--depth-noise-m without --depth-noise-model-m" in capsys.readouterr().out) == noted
 
 
 def test_hybrid_guards_describe_the_committed_hybrid_rows():
