@@ -292,102 +292,35 @@ def test_eval_depth_shield_needs_a_vision_residual_and_a_margin(workdir):
     ):
         args = ["--table", "2", "--policy", policy, "--depth-views", views, *extra]
         assert expected in refused(workdir, "eval", *args)
-    message = refused(
-        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-shield-m", "-1"
-    )
-    assert "bad --depth-shield-m: margin_m must be a number >= 0, got -1.0" in message
-    message = refused(
-        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-planner"
-    )
-    assert "--depth-planner needs --depth-shield-m" in message
-    message = refused(
-        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-shadow-m", "0.07"
-    )
-    assert "--depth-shadow-m needs --depth-shield-m" in message
-    message = refused(
-        workdir,
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        "residual-1view",
-        "--depth-shield-m",
-        "0.01",
-        "--depth-shadow-m",
-        "0",
-    )
-    assert "--depth-shadow-m must be a number > 0, got 0.0" in message
-    message = refused(
-        workdir,
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        "residual-1view",
-        "--depth-shield-m",
-        "0.01",
-        "--depth-shadow-behind-surfaces",
-    )
-    assert "--depth-shadow-behind-surfaces needs --depth-shadow-m" in message
-    message = refused(
-        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-bridge-m", "0.05"
-    )
-    assert "--depth-bridge-m needs --depth-shield-m" in message
-    message = refused(
-        workdir,
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        "residual-1view",
-        "--depth-shield-m",
-        "0.01",
-        "--depth-bridge-m",
-        "-0.05",
-    )
-    assert "--depth-bridge-m must be a number >= 0, got -0.05" in message
-    message = refused(
-        workdir,
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        "residual-1view",
-        "--depth-hybrid",
-        "--depth-shield-m",
-        "0.02",
-    )
-    assert "--depth-hybrid sets the depth options itself: drop the others" in message
-    message = refused(
-        workdir, "eval", "--table", "2", "--policy", "residual-1view", "--depth-fine-size", "128"
-    )
-    assert "--depth-fine-size needs --depth-shield-m" in message
-    message = refused(
-        workdir,
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        "residual-1view",
-        "--depth-shield-m",
-        "0.01",
-        "--depth-fine-size",
-        "4",
-    )
-    assert "--depth-fine-size must be 0 or 8..1024, got 4" in message
-    message = refused(
-        workdir,
-        "eval",
-        "--table",
-        "2",
-        "--policy",
-        "residual-1view",
-        "--depth-shield-m",
-        "0.01",
-        "--depth-plan-checks",
-        "5000",
-    )
-    assert "--depth-plan-checks needs --depth-planner" in message
+    margin = ("--depth-shield-m", "0.01")
+    for args, expected in (
+        (
+            ("--depth-shield-m", "-1"),
+            "bad --depth-shield-m: margin_m must be a number >= 0, got -1.0",
+        ),
+        (("--depth-planner",), "--depth-planner needs --depth-shield-m"),
+        (("--depth-shadow-m", "0.07"), "--depth-shadow-m needs --depth-shield-m"),
+        ((*margin, "--depth-shadow-m", "0"), "--depth-shadow-m must be a number > 0, got 0.0"),
+        (
+            (*margin, "--depth-shadow-behind-surfaces"),
+            "--depth-shadow-behind-surfaces needs --depth-shadow-m",
+        ),
+        (("--depth-bridge-m", "0.05"), "--depth-bridge-m needs --depth-shield-m"),
+        (
+            (*margin, "--depth-bridge-m", "-0.05"),
+            "--depth-bridge-m must be a number >= 0, got -0.05",
+        ),
+        (
+            ("--depth-hybrid", "--depth-shield-m", "0.02"),
+            "--depth-hybrid sets the depth options itself: drop the others",
+        ),
+        (("--depth-fine-size", "128"), "--depth-fine-size needs --depth-shield-m"),
+        ((*margin, "--depth-fine-size", "4"), "--depth-fine-size must be 0 or 8..1024, got 4"),
+        ((*margin, "--depth-plan-checks", "5000"), "--depth-plan-checks needs --depth-planner"),
+    ):
+        assert expected in refused(
+            workdir, "eval", "--table", "2", "--policy", "residual-1view", *args
+        )
     message = refused(workdir, "eval", "--table", "2", "--policy", "base", "--depth-hybrid")
     assert "the depth shield needs a vision residual" in message
 
