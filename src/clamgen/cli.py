@@ -468,6 +468,11 @@ class EvalConfig:
     noise model, sd this times z**2 at depth z (m; as --depth-noise-m), and takes a point
     within 3 sds along its ray of the arm, the table or the target for it
     (`depth_shield.DepthOccupancy`, beyond the paper). 0: exact depth assumed."""
+    depth_goal_zone_m: float = 0.0
+    """With --depth-planner or --depth-hybrid: where no configuration at the goal keeps the
+    margin from the depth map, plan to it keeping 3 mm within this distance (m) of the target
+    and the margin elsewhere, and let the shield keep 3 mm while following such a plan there
+    (`depth_planner.DepthShieldPlanner`, beyond the paper). 0: such goals are not planned to."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
     joint command, then the policy again, every step through the shield, which stops an escape
@@ -676,6 +681,7 @@ def _depth_options_given(config) -> bool:
         or config.depth_plan_checks != 0
         or config.depth_track_m is not None
         or config.depth_noise_model_m != 0
+        or config.depth_goal_zone_m != 0
         or config.depth_escapes
         or config.depth_escapes_before_plan != ESCAPES_BEFORE_PLAN
     )
@@ -694,15 +700,20 @@ def _with_depth_shield(policy, source: str, env_kwargs: dict, config):
 
     from clamgen.experiments.depth_planner import ESCAPES, ESCAPES_PLANNER, HYBRID
 
-    # A preset takes --depth-plan-checks and --depth-track-m for its planner, and
-    # --depth-noise-model-m; the rest it sets.
+    # A preset takes --depth-plan-checks, --depth-track-m and --depth-goal-zone-m for its
+    # planner, and --depth-noise-model-m; the rest it sets.
     planning = dataclasses.replace(
-        config, depth_plan_checks=0, depth_track_m=None, depth_noise_model_m=0.0
+        config,
+        depth_plan_checks=0,
+        depth_track_m=None,
+        depth_noise_model_m=0.0,
+        depth_goal_zone_m=0.0,
     )
     if config.depth_hybrid and _depth_options_given(planning):
         raise SystemExit(
             "--depth-hybrid sets the depth options itself: drop the others (but "
-            "--depth-plan-checks, --depth-track-m and --depth-noise-model-m)"
+            "--depth-plan-checks, --depth-track-m, --depth-goal-zone-m and "
+            "--depth-noise-model-m)"
         )
     # --depth-escapes without a shield's options (with --depth-planner or not): the escape
     # rows' shield.
@@ -783,6 +794,9 @@ def _depth_guard(config):
     track_m = _track_m(config, 0.0)
     if config.depth_track_m is not None and not planner:
         raise SystemExit("--depth-track-m needs --depth-planner (the planner it steers)")
+    goal_zone_m = _goal_zone_m(config)
+    if goal_zone_m and not planner:
+        raise SystemExit("--depth-goal-zone-m needs --depth-planner (the planner it relaxes)")
     escapes_first = _escapes_first(config)
     if margin_m is None:
         if shadow_m is not None or behind_surfaces:
@@ -818,6 +832,7 @@ def _depth_guard(config):
         escapes_first,
         track_m=track_m,
         noise_m=_noise_model_m(config),
+        goal_zone_m=goal_zone_m,
     )
 
 
@@ -1062,17 +1077,27 @@ def _preset_options(guard, config):
     `config`'s --depth-noise-model-m, and --depth-plan-checks and --depth-track-m for its
     planner; SystemExit where it has none."""
     checks, track_m = _plan_checks(config), _track_m(config, guard.track_m)
-    if (checks or config.depth_track_m is not None) and not guard.planner:
+    goal_zone_m = _goal_zone_m(config)
+    if (checks or config.depth_track_m is not None or goal_zone_m) and not guard.planner:
         raise SystemExit(
-            "--depth-plan-checks and --depth-track-m need a planner (--depth-planner): "
-            "--depth-escapes alone never plans"
+            "--depth-plan-checks, --depth-track-m and --depth-goal-zone-m need a planner "
+            "(--depth-planner): --depth-escapes alone never plans"
         )
     return dataclasses.replace(
         guard,
         plan_checks=checks or guard.plan_checks,
         track_m=track_m,
         noise_m=_noise_model_m(config),
+        goal_zone_m=goal_zone_m or guard.goal_zone_m,
     )
+
+
+def _goal_zone_m(config) -> float:
+    """`config`'s --depth-goal-zone-m; SystemExit when it is negative or not finite."""
+    zone_m = config.depth_goal_zone_m
+    if not 0 <= zone_m < float("inf"):
+        raise SystemExit(f"--depth-goal-zone-m must be a number >= 0, got {zone_m}")
+    return zone_m
 
 
 def _noise_model_m(config) -> float:

@@ -311,6 +311,41 @@ def test_planner_with_a_budget_in_checks_reaches_past_the_obstacles_the_same_way
         DepthShieldPlanner(HoldStill(), VIEWS, SIZE, plan_checks=-1)
 
 
+def test_the_planner_reaches_a_goal_tighter_than_its_margin_only_within_the_goal_zone():
+    """A blocked target where every configuration at the goal comes within 1 cm of the seen
+    surface (a training task; true clearance at best 5.5 mm): with `goal_zone_m` the plan
+    keeps `GOAL_MARGIN_M` within the zone and the margin elsewhere; without, there is none."""
+    pytest.importorskip("ompl.base")
+    from clamgen.experiments.config import TRAINING_SEEDS
+    from clamgen.experiments.depth_planner import GOAL_MARGIN_M, DepthShieldPlanner
+    from clamgen.robot.kinematics import tip_position
+
+    env = ReachEnv(
+        num_obstacles=2, task_family="blocked", num_views=VIEWS, image_size=SIZE,
+        obs_mode="both", fine_depth_size=128,
+    )  # fmt: skip
+    obs, _ = env.reset(seed=TRAINING_SEEDS.start + 777_126)
+    goal = np.asarray(obs["desired_goal"], np.float64)
+    paths = {}
+    for zone_m in (0.0, 0.1):
+        planner = DepthShieldPlanner(
+            HoldStill(), VIEWS, SIZE, margin_m=0.01, plan_checks=20_000, fine_depth_size=128,
+            goal_zone_m=zone_m,
+        )  # fmt: skip
+        planner.reset(env)
+        joints = planner.observe(obs)
+        assert planner.checker.clearance(joints, cap=0.01) >= 0.01
+        paths[zone_m] = planner.plan(joints, goal)
+    assert paths[0.0] is None
+    clearances = np.array([planner.checker.clearance(q, cap=0.01) for q in paths[0.1]])
+    off_goal = np.linalg.norm([tip_position(q) - goal for q in paths[0.1]], axis=1)
+    assert clearances.min() >= GOAL_MARGIN_M - 1e-6 and clearances.min() < 0.01
+    assert (off_goal[clearances < 0.01 - 1e-6] < 0.1).all()
+    assert off_goal[-1] < 0.01
+    with pytest.raises(ValueError, match="goal_zone_m"):
+        DepthShieldPlanner(HoldStill(), VIEWS, SIZE, goal_zone_m=-1.0)
+
+
 def test_rrt_on_the_depth_map_plans_at_the_first_step_with_no_policy(blocked_env):
     """`plan_first` (the `depth-rrt-*` baselines): with nothing inside but a held arm, the
     planner plans on the first views at once instead of after the stall window, so the same
@@ -797,7 +832,7 @@ def test_hybrid_guard_flags_give_the_same_guard_through_clamgen_eval(views):
 @pytest.mark.parametrize("views", sorted(HYBRID))
 def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
     env_kwargs = {"num_views": views, "image_size": 64, "obs_mode": "both"}
-    planning = ["--depth-plan-checks", "5000", "--depth-track-m", "0"]
+    planning = ["--depth-plan-checks", "5000", "--depth-track-m", "0", "--depth-goal-zone-m", "0.1"]
     noise = ["--depth-noise-model-m", "0.003"]
     for preset, guard in (
         (["--depth-hybrid"], HYBRID[views]),
@@ -805,9 +840,10 @@ def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
     ):
         config = tyro.cli(EvalConfig, args=["--table", "2", *preset, *planning, *noise])
         shielded, source, _ = _with_depth_shield(IKInterpolationPolicy(), "", env_kwargs, config)
-        told = replace(guard, plan_checks=5000, track_m=0.0, noise_m=0.003)
+        told = replace(guard, plan_checks=5000, track_m=0.0, noise_m=0.003, goal_zone_m=0.1)
         assert source == told.describe() and "depth noise model sd 0.003*z^2 m" in source
-        assert (shielded.rrt.max_checks, shielded.track_m) == (5000, 0.0)
+        assert "keeping 3 mm within 0.1 m of a goal" in source
+        assert (shielded.rrt.max_checks, shielded.track_m, shielded.goal_zone_m) == (5000, 0.0, 0.1)
         assert shielded.occupancy.noise_m == 0.003
         assert _depth_guard(tyro.cli(EvalConfig, args=["--table", "2", *told.flags()])) == told
     # The escapes alone plan nothing, but their map takes the noise model.
@@ -826,6 +862,9 @@ def test_the_preset_wrappers_take_their_planners_budget_and_tracking(views):
     for args, message in (
         (["--depth-escapes", "--depth-track-m", "0.02"], "need a planner"),
         (["--depth-escapes", "--depth-plan-checks", "100"], "need a planner"),
+        (["--depth-escapes", "--depth-goal-zone-m", "0.1"], "need a planner"),
+        (["--depth-hybrid", "--depth-goal-zone-m", "-1"], "must be a number >= 0"),
+        (["--depth-shield-m", "0.01", "--depth-goal-zone-m", "0.1"], "needs --depth-planner"),
         (["--depth-hybrid", "--depth-track-m", "-1"], "must be a number >= 0"),
         (["--depth-hybrid", "--depth-plan-checks", "-1"], "must be >= 0"),
         (["--depth-hybrid", "--depth-noise-model-m", "-1"], "must be a number >= 0"),

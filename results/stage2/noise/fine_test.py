@@ -97,9 +97,9 @@ def summary(lines: list[dict]) -> None:
         print(f"{test}: blocked, summed over {rows} rows: {success} reached, {collided} collided")
 
 
-def pilot_main(doc: str, tests, views, run, out: Path) -> None:
-    """The command line of a pilot whose rows are (test, views, K, family), `run(*row)` one
-    row's JSON line, written to `out` (this pilot's and `lift_test.py`'s)."""
+def pilot_main(doc: str, tests, views, run, out: Path, levels=LEVELS) -> None:
+    """The command line of a pilot whose rows are (test, views, K, family) for K in `levels`,
+    `run(*row)` one row's JSON line, written to `out` (this pilot's and `lift_test.py`'s)."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--test", choices=tuple(tests))
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
@@ -110,7 +110,7 @@ def pilot_main(doc: str, tests, views, run, out: Path) -> None:
         keys = [
             (args.test, number, noise_m, family)
             for number in views
-            for noise_m in LEVELS
+            for noise_m in levels
             for family in COUNTS
         ]
         run_missing(

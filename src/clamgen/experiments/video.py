@@ -100,6 +100,9 @@ class RenderConfig:
     depth_noise_model_m: float = 0.0
     """With a depth wrapper (or a `depth-rrt-*` baseline): its map told the depth cameras'
     noise model, as `clamgen eval --depth-noise-model-m`. 0: exact depth assumed."""
+    depth_goal_zone_m: float = 0.0
+    """With --depth-planner or --depth-hybrid: plan to a goal that keeps less than the margin
+    keeping 3 mm within this distance of it, as `clamgen eval --depth-goal-zone-m`. 0: off."""
     depth_escapes: bool = False
     """Random escapes from stalls inside the shield, as `clamgen eval --depth-escapes` (alone:
     the escape rows' setting; with --depth-planner, before its plans)."""
