@@ -8,7 +8,7 @@ obstacles either (best true clearances 0.5-8 mm): blocked-path targets often sit
 way in passes an obstacle within a centimetre. `DepthShieldPlanner(goal_zone_m=Z)` plans to
 such a goal keeping `GOAL_MARGIN_M` = 3 mm within Z of the target and the margin elsewhere, and
 its shield keeps 3 mm while the arm follows such a plan within the zone. On those training
-tasks with Z = 0.1 (a probe, `runs/`, not committed): exact depth 149 -> 156 of 160 reached,
+tasks with Z = 0.1 (a probe, `goal_zone_probe/`): exact depth 149 -> 156 of 160 reached,
 collisions 2 -> 4; told K = 0.01, 148 -> 155, collisions 1 -> 2.
 
 Protocol (written before any run): the shipped 3-, 2- and 1-view residuals in their hybrids
