@@ -471,7 +471,7 @@ class EvalConfig:
     depth_goal_zone_m: float = 0.0
     """With --depth-planner or --depth-hybrid: where no configuration at the goal keeps the
     margin from the depth map, plan to it keeping 3 mm within this distance (m) of the target
-    and the margin elsewhere, and let the shield keep 3 mm while following such a plan there
+    and the margin elsewhere, and let the shield keep 3 mm while the arm follows a plan there
     (`depth_planner.DepthShieldPlanner`, beyond the paper). 0: such goals are not planned to."""
     depth_escapes: bool = False
     """Instead of --depth-planner: once the episode has stalled 10 steps, 5 steps of one random
