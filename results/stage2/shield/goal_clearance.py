@@ -1,0 +1,118 @@
+"""How tight are the blocked test tasks' goals, and who solves the tight ones (session 49; a
+description of committed rows, nothing chosen on it).
+
+For each of the 200 blocked Table 2 test tasks: the largest clearance any IK solution at the
+target keeps from the true obstacles (MuJoCo's geom distances, every arm geom against every
+obstacle; `goal_clearance.json`, written once). Then each committed row's per-task success
+(`task_success`), split by that clearance: under 5 mm, 5 mm to 1 cm, 1 cm and more (the
+depth wrappers keep 1 cm; `shield/README.md`, session 49, found their stalls on such goals on
+training tasks). Prints a Markdown table (`goal_clearance.md`).
+
+    python results/stage2/shield/goal_clearance.py
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from clamgen.envs import ReachEnv
+from clamgen.experiments.config import TEST_SEEDS
+from clamgen.robot import ur5
+from clamgen.robot.kinematics import solve_tip_position
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[2]
+CACHE = HERE / "goal_clearance.json"
+OUT = HERE / "goal_clearance.md"
+NUM_TASKS = 200
+STRATA = (
+    (-np.inf, 0.005, "under 5 mm"),
+    (0.005, 0.01, "5 mm to 1 cm"),
+    (0.01, np.inf, "1 cm or more"),
+)
+ROWS = {
+    "3 views, alone (seeds 5, 7, 8, 9)": [
+        "results/stage2/ensemble/3v-dagger+2_test.json",
+        *(f"results/stage2/ensemble/seeds/student3_seed{s}.json" for s in (7, 8, 9)),
+    ],
+    "3 views, hybrid (seeds 5, 7, 8, 9)": [
+        "results/table2/hybrid_residual-3views.json",
+        *(f"results/stage2/ensemble/seeds/hybrid3_seed{s}.json" for s in (7, 8, 9)),
+    ],
+    "3 views, escapes (seeds 5, 7, 8, 9)": [
+        "results/table2/escapes_residual-3views.json",
+        *(f"results/stage2/ensemble/seeds/escapes3_seed{s}.json" for s in (7, 8, 9)),
+    ],
+    "2 views, alone (seed 5)": ["results/stage2/ensemble/2v-dagger+2_test.json"],
+    "2 views, hybrid (seed 5)": ["results/table2/hybrid_residual-2views.json"],
+    "1 view, alone (seed 5)": ["results/stage2/ensemble/1v-dagger+2_test.json"],
+    "1 view, hybrid (seed 5)": ["results/table2/hybrid_residual-1view.json"],
+    "RRT on the 3-view depth map (`depth-rrt-3views`)": ["results/table2/depth_rrt_3views.json"],
+    "RRT with the true scene (`rrt`)": ["results/table2/rrt.json"],
+}
+
+
+def goal_clearances() -> list[float]:
+    """Per blocked test task, the best true clearance of the goal's IK solutions (m)."""
+    if CACHE.exists():
+        return json.loads(CACHE.read_text())["best_clearance_m"]
+    env = ReachEnv(num_obstacles=2, task_family="blocked")
+    fromto = np.zeros(6)
+    best = []
+    for seed in TEST_SEEDS.seeds(NUM_TASKS):
+        env.reset(seed=int(seed))
+        scene = env.unwrapped.scene
+        model, data = scene.model, scene.data
+        obstacles = [g for g in scene.obstacle_geoms.ravel() if model.geom_conaffinity[g]]
+        values = []
+        for q in solve_tip_position(scene.target_position, reference_joints=ur5.HOME_JOINTS):
+            data.qpos[:] = q
+            mujoco.mj_kinematics(model, data)
+            values.append(
+                min(
+                    mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
+                    for a in scene.robot_geoms
+                    for o in obstacles
+                )
+            )
+        best.append(float(max(values)) if values else float("-inf"))
+    first = int(TEST_SEEDS.start)
+    CACHE.write_text(json.dumps({"first_seed": first, "best_clearance_m": best}, indent=1))
+    return best
+
+
+def blocked_success(path: str) -> np.ndarray:
+    rows = json.loads((ROOT / path).read_text())["rows"]
+    (row,) = [r for r in rows if r["family"] == "blocked"]
+    if row["first_seed"] != TEST_SEEDS.start or row["num_tasks"] != NUM_TASKS:
+        raise ValueError(f"{path}: not the 200 blocked test tasks")
+    return np.asarray(row["task_success"], bool)
+
+
+def main() -> None:
+    best = np.asarray(goal_clearances())
+    masks = [(low <= best) & (best < high) for low, high, _ in STRATA]
+    counts = zip(STRATA, masks, strict=True)
+    header = " | ".join(f"{name} ({int(m.sum())} tasks)" for (_, _, name), m in counts)
+    lines = [
+        "Blocked test tasks by the best true clearance of the goal's IK solutions "
+        "(`goal_clearance.py`); success per stratum, means over the listed seeds.",
+        "",
+        f"| row | all 200 | {header} |",
+        "|---|---|" + "---|" * len(STRATA),
+    ]
+    for name, paths in ROWS.items():
+        success = np.mean([blocked_success(p) for p in paths], axis=0)
+        cells = [f"{success[m].mean():.3f}" for m in masks]
+        lines.append(f"| {name} | {success.mean():.3f} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines) + "\n"
+    OUT.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
