@@ -43,7 +43,29 @@ def tanh_gaussian_sample(
     return torch.tanh(pre_squash), (gaussian - squash).sum(-1)
 
 
-class Actor(nn.Module):
+class _TanhGaussianPolicy(nn.Module):
+    """What the actors share: `forward` gives the pre-squash mean and log std (B, A) of the
+    action to take, bounded smoothly to `log_std_bounds` (as in DrQ-v2's SAC ancestor, which
+    keeps exp() finite); sampling and the deterministic action follow from it."""
+
+    log_std_bounds: tuple[float, float]
+
+    def bounded_log_std(self, raw_log_std: torch.Tensor) -> torch.Tensor:
+        low, high = self.log_std_bounds
+        return low + 0.5 * (high - low) * (torch.tanh(raw_log_std) + 1.0)
+
+    def sample(
+        self, features: torch.Tensor, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Reparameterised action (B, A) in (-1, 1) and its log-probability (B,)."""
+        return tanh_gaussian_sample(*self(features), generator)
+
+    def mode(self, features: torch.Tensor) -> torch.Tensor:
+        """Deterministic action tanh(mean), (B, A)."""
+        return torch.tanh(self(features)[0])
+
+
+class Actor(_TanhGaussianPolicy):
     """Tanh-squashed diagonal Gaussian policy ``pi(a | s, g)`` over actions in [-1, 1]^A."""
 
     def __init__(
@@ -61,23 +83,10 @@ class Actor(nn.Module):
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Pre-squash mean and log standard deviation, each (B, A), from features (B, D)."""
         mean, raw_log_std = self.trunk(features).chunk(2, dim=-1)
-        # Smoothly bounded log std (as in DrQ-v2's SAC ancestor) keeps exp() finite.
-        low, high = self.log_std_bounds
-        log_std = low + 0.5 * (high - low) * (torch.tanh(raw_log_std) + 1.0)
-        return mean, log_std
-
-    def sample(
-        self, features: torch.Tensor, generator: torch.Generator | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Reparameterised action (B, A) in (-1, 1) and its log-probability (B,)."""
-        return tanh_gaussian_sample(*self(features), generator)
-
-    def mode(self, features: torch.Tensor) -> torch.Tensor:
-        """Deterministic action tanh(mean), (B, A)."""
-        return torch.tanh(self(features)[0])
+        return mean, self.bounded_log_std(raw_log_std)
 
 
-class MixtureActor(nn.Module):
+class MixtureActor(_TanhGaussianPolicy):
     """``components`` candidate actions and a choice among them, for behaviour cloning of a
     teacher whose actions are multimodal (beyond the paper). Where an obstacle can be passed on
     either side, a teacher labels nearby states with either side; one mean regressed on both
@@ -115,25 +124,14 @@ class MixtureActor(nn.Module):
         out = self.trunk(features)
         mean = out[..., : k * a].unflatten(-1, (k, a))
         raw_log_std = out[..., k * a : 2 * k * a].unflatten(-1, (k, a))
-        low, high = self.log_std_bounds
-        log_std = low + 0.5 * (high - low) * (torch.tanh(raw_log_std) + 1.0)
-        return mean, log_std, out[..., 2 * k * a :]
+        return mean, self.bounded_log_std(raw_log_std), out[..., 2 * k * a :]
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Pre-squash mean and log std (B, A) of the chosen candidate."""
+        """Pre-squash mean and log std (B, A) of the chosen candidate (`sample` and `mode`
+        act with it)."""
         mean, log_std, logits = self.components(features)
         rows, best = torch.arange(len(logits), device=logits.device), logits.argmax(-1)
         return mean[rows, best], log_std[rows, best]
-
-    def sample(
-        self, features: torch.Tensor, generator: torch.Generator | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """A sample around the chosen candidate (B, A) and its log-probability (B,)."""
-        return tanh_gaussian_sample(*self(features), generator)
-
-    def mode(self, features: torch.Tensor) -> torch.Tensor:
-        """Deterministic action: tanh of the chosen candidate's mean, (B, A)."""
-        return torch.tanh(self(features)[0])
 
     def imitation_loss(self, features: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Squared error (mean over action dimensions) of the candidate nearest to each
