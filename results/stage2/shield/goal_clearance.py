@@ -56,30 +56,38 @@ ROWS = {
 }
 
 
+def solution_clearances(env: ReachEnv, seed: int) -> np.ndarray:
+    """The true clearance (m, capped at 0.1) from the obstacles of each IK solution at the
+    target of `env`'s task `seed` (MuJoCo's geom distances, every arm geom against every
+    obstacle)."""
+    env.reset(seed=int(seed))
+    scene = env.unwrapped.scene
+    model, data = scene.model, scene.data
+    obstacles = [g for g in scene.obstacle_geoms.ravel() if model.geom_conaffinity[g]]
+    fromto = np.zeros(6)
+    values = []
+    for q in solve_tip_position(scene.target_position, reference_joints=ur5.HOME_JOINTS):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        values.append(
+            min(
+                mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
+                for a in scene.robot_geoms
+                for o in obstacles
+            )
+        )
+    return np.asarray(values)
+
+
 def goal_clearances() -> list[float]:
     """Per blocked test task, the best true clearance of the goal's IK solutions (m)."""
     if CACHE.exists():
         return json.loads(CACHE.read_text())["best_clearance_m"]
     env = ReachEnv(num_obstacles=2, task_family="blocked")
-    fromto = np.zeros(6)
     best = []
     for seed in TEST_SEEDS.seeds(NUM_TASKS):
-        env.reset(seed=int(seed))
-        scene = env.unwrapped.scene
-        model, data = scene.model, scene.data
-        obstacles = [g for g in scene.obstacle_geoms.ravel() if model.geom_conaffinity[g]]
-        values = []
-        for q in solve_tip_position(scene.target_position, reference_joints=ur5.HOME_JOINTS):
-            data.qpos[:] = q
-            mujoco.mj_kinematics(model, data)
-            values.append(
-                min(
-                    mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
-                    for a in scene.robot_geoms
-                    for o in obstacles
-                )
-            )
-        best.append(float(max(values)) if values else float("-inf"))
+        values = solution_clearances(env, int(seed))
+        best.append(float(values.max()) if len(values) else float("-inf"))
     first = int(TEST_SEEDS.start)
     CACHE.write_text(json.dumps({"first_seed": first, "best_clearance_m": best}, indent=1))
     return best

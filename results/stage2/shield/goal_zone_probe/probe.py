@@ -15,8 +15,8 @@ map, and how many of the goal's IK solutions keep 1 cm from the final map.
 import json
 import sys
 from dataclasses import replace
+from pathlib import Path
 
-import mujoco
 import numpy as np
 import torch
 
@@ -65,25 +65,12 @@ def run(noise_m: float, zone_m: float, episodes: int, first: int) -> None:
 
 
 def true_clearance(offsets: list[int]) -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from goal_clearance import solution_clearances  # (../goal_clearance.py)
+
     env = ReachEnv(num_obstacles=2, task_family="blocked")
-    fromto = np.zeros(6)
     for offset in offsets:
-        env.reset(seed=TRAINING_SEEDS.start + offset)
-        scene = env.unwrapped.scene
-        model, data = scene.model, scene.data
-        obstacles = [g for g in scene.obstacle_geoms.ravel() if model.geom_conaffinity[g]]
-        best = []
-        for q in solve_tip_position(scene.target_position, reference_joints=ur5.HOME_JOINTS):
-            data.qpos[:] = q
-            mujoco.mj_kinematics(model, data)
-            best.append(
-                min(
-                    mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
-                    for a in scene.robot_geoms
-                    for o in obstacles
-                )
-            )
-        best = np.array(best)
+        best = solution_clearances(env, TRAINING_SEEDS.start + offset)
         print(
             f"{offset}: {len(best)} goal solutions, best true clearance {best.max():.4f} m, "
             f">= 1 cm: {(best >= 0.01).sum()}, >= 5 mm: {(best >= 0.005).sum()}, "
