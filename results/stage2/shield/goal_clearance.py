@@ -3,10 +3,12 @@ description of committed rows, nothing chosen on it).
 
 For each of the 200 blocked Table 2 test tasks: the largest clearance any IK solution at the
 target keeps from the true obstacles (MuJoCo's geom distances, every arm geom against every
-obstacle; `goal_clearance.json`, written once). Then each committed row's per-task success
-(`task_success`), split by that clearance: under 5 mm, 5 mm to 1 cm, 1 cm and more (the
-depth wrappers keep 1 cm; `shield/README.md`, session 49, found their stalls on such goals on
-training tasks). Prints a Markdown table (`goal_clearance.md`).
+obstacle; `goal_clearance.json`, written once). Then the committed rows' per-task success
+(`task_success`) of each way of acting over the shipped recipes' training seeds (the rows of
+the aims table: their means over all 200 tasks are its blocked column), split by that
+clearance: under 5 mm, 5 mm to 1 cm, 1 cm and more (the depth wrappers keep 1 cm;
+`shield/README.md`, session 49, found their stalls on such goals on training tasks). Prints a
+Markdown table (`goal_clearance.md`).
 
     python results/stage2/shield/goal_clearance.py
 """
@@ -34,23 +36,40 @@ STRATA = (
     (0.005, 0.01, "5 mm to 1 cm"),
     (0.01, np.inf, "1 cm or more"),
 )
-ROWS = {
-    "3 views, alone (seeds 5, 7, 8, 9)": [
-        "results/stage2/ensemble/3v-dagger+2_test.json",
-        *(f"results/stage2/ensemble/seeds/student3_seed{s}.json" for s in (7, 8, 9)),
-    ],
-    "3 views, hybrid (seeds 5, 7, 8, 9)": [
-        "results/table2/hybrid_residual-3views.json",
-        *(f"results/stage2/ensemble/seeds/hybrid3_seed{s}.json" for s in (7, 8, 9)),
-    ],
-    "3 views, escapes (seeds 5, 7, 8, 9)": [
-        "results/table2/escapes_residual-3views.json",
-        *(f"results/stage2/ensemble/seeds/escapes3_seed{s}.json" for s in (7, 8, 9)),
-    ],
-    "2 views, alone (seed 5)": ["results/stage2/ensemble/2v-dagger+2_test.json"],
-    "2 views, hybrid (seed 5)": ["results/table2/hybrid_residual-2views.json"],
-    "1 view, alone (seed 5)": ["results/stage2/ensemble/1v-dagger+2_test.json"],
-    "1 view, hybrid (seed 5)": ["results/table2/hybrid_residual-1view.json"],
+SEED5 = {
+    "alone": "results/stage2/ensemble/{v}v-dagger+2_test.json",
+    "hybrid": "results/table2/hybrid_residual-{name}.json",
+    "escapes": "results/table2/escapes_residual-{name}.json",
+    "escapes_planner": "results/table2/escapes_planner_residual-{name}.json",
+}
+"""The shipped seed's (5) committed row of each way of acting (`{v}`: views, `{name}`: the
+policy's suffix)."""
+KINDS = {"alone": "student", "hybrid": "hybrid", "escapes": "escapes"}
+KINDS_1V = {"escapes_planner": "escapes_planner"}
+WORDS = {
+    "alone": "alone",
+    "hybrid": "hybrid",
+    "escapes": "escapes",
+    "escapes_planner": "planner + escapes where it finds none",
+}
+
+
+def seed_rows() -> dict[str, list[str]]:
+    """Per (views, way of acting), the committed test rows over training seeds: the shipped
+    seed's and those of `../ensemble/seeds/` that exist."""
+    seeds_dir = ROOT / "results/stage2/ensemble/seeds"
+    rows = {}
+    for views, name in ((3, "3views"), (2, "2views"), (1, "1view")):
+        kinds = KINDS | (KINDS_1V if views == 1 else {})
+        for kind, stem in kinds.items():
+            paths = [SEED5[kind].format(v=views, name=name)]
+            others = sorted(seeds_dir.glob(f"{stem}{views}_seed*.json"))
+            paths += [str(path.relative_to(ROOT)) for path in others]
+            rows[f"{views} view{'s' * (views > 1)}, {WORDS[kind]} ({len(paths)} seeds)"] = paths
+    return rows
+
+
+BASELINES = {
     "RRT on the 3-view depth map (`depth-rrt-3views`)": ["results/table2/depth_rrt_3views.json"],
     "RRT with the true scene (`rrt`)": ["results/table2/rrt.json"],
 }
@@ -113,7 +132,7 @@ def main() -> None:
         f"| row | all 200 | {header} |",
         "|---|---|" + "---|" * len(STRATA),
     ]
-    for name, paths in ROWS.items():
+    for name, paths in (seed_rows() | BASELINES).items():
         success = np.mean([blocked_success(p) for p in paths], axis=0)
         cells = [f"{success[m].mean():.3f}" for m in masks]
         lines.append(f"| {name} | {success.mean():.3f} | " + " | ".join(cells) + " |")
