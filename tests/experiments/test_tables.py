@@ -101,9 +101,11 @@ def test_eval_with_an_action_scale_moves_the_arm_in_more_steps(tmp_path):
         assert data["rows"][0]["mean_steps"] == row.mean_steps
         steps[stem], paths[stem] = row.mean_steps, row.mean_tip_path_m
         assert row.reach_rate == 1.0
-        # Per task, in seed order: the steps and the tip's path, in the JSON too.
+        # Per task, in seed order: the steps, the tip's path and collisions, in the JSON too.
         assert data["rows"][0]["task_steps"] == row.task_steps and len(row.task_steps) == 2
         assert np.mean(row.task_steps) == row.mean_steps
+        assert data["rows"][0]["task_collided"] == row.task_collided
+        assert len(row.task_collided) == 2 and np.mean(row.task_collided) == row.collision_rate
         assert np.mean(row.task_tip_path_m) == pytest.approx(row.mean_tip_path_m, abs=1e-5)
     assert data["policy"] == "ik_interpolation, actions scaled by 0.5"
     assert steps["half"] > 1.5 * steps["full"]  # half-length steps along the same path

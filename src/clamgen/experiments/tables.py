@@ -279,6 +279,9 @@ class ObstacleRow:
     depth_noise_m: float = 0.0
     """The depth images' noise, standard deviation `depth_noise_m * z**2` at depth z (m)
     (`clamgen eval --table 2 --depth-noise-m`, beyond the paper); 0, as in the paper: exact."""
+    task_collided: list[bool] | None = None
+    """Whether some step collided, per task, in seed order (to compare rows' collisions task
+    by task); None in rows measured before session 49."""
 
     @property
     def num_successes(self) -> int:
@@ -393,6 +396,7 @@ def table2_row(
         real_time=real_time,
         task_held_steps=[int(r.held_steps) for r in records] if real_time else None,
         depth_noise_m=float((env_kwargs or {}).get("depth_noise_m", 0.0)),
+        task_collided=[bool(r.collided) for r in records],
     )
 
 
