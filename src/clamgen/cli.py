@@ -523,8 +523,7 @@ def evaluate_table(config: EvalConfig) -> list:
         raise SystemExit("--real-time is Table 2's")
     if config.depth_noise_m and config.table != 2:
         raise SystemExit("--depth-noise-m is Table 2's")
-    if not 0 <= config.depth_noise_m < float("inf"):
-        raise SystemExit(f"--depth-noise-m must be a number >= 0, got {config.depth_noise_m}")
+    _nonnegative("--depth-noise-m", config.depth_noise_m)
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.config import check_table_seeds
     from clamgen.experiments.policies import load_policy, policy_observation
@@ -657,16 +656,16 @@ def _check_depth_request(config) -> None:
             )
         _plan_checks(config)
         _track_m(config, 0.0)
-        if config.depth_noise_m and not _noise_model_m(config):
-            print(f"note: {UNTOLD_NOISE_NOTE}")
-        return
-    wanted = _wants_depth_shield(config)
-    if config.depth_views and not wanted:
-        raise SystemExit(
-            "--depth-views renders views for the depth wrapper: give its options too "
-            "(--depth-hybrid, --depth-escapes or --depth-shield-m)"
-        )
-    if wanted and config.depth_noise_m and not config.depth_noise_model_m:
+        _noise_model_m(config)
+        mapped = True  # (it plans on a depth map)
+    else:
+        mapped = _wants_depth_shield(config)
+        if config.depth_views and not mapped:
+            raise SystemExit(
+                "--depth-views renders views for the depth wrapper: give its options too "
+                "(--depth-hybrid, --depth-escapes or --depth-shield-m)"
+            )
+    if mapped and config.depth_noise_m and not config.depth_noise_model_m:
         print(f"note: {UNTOLD_NOISE_NOTE}")
 
 
@@ -815,8 +814,7 @@ def _depth_guard(config):
         raise SystemExit(f"--depth-shadow-m must be a number > 0, got {shadow_m}")
     if behind_surfaces and shadow_m is None:
         raise SystemExit("--depth-shadow-behind-surfaces needs --depth-shadow-m")
-    if not 0 <= bridge_m < float("inf"):
-        raise SystemExit(f"--depth-bridge-m must be a number >= 0, got {bridge_m}")
+    _nonnegative("--depth-bridge-m", bridge_m)
     fine = config.depth_fine_size
     if fine != 0 and not 8 <= fine <= MAX_IMAGE_SIZE:
         raise SystemExit(f"--depth-fine-size must be 0 or 8..{MAX_IMAGE_SIZE}, got {fine}")
@@ -847,11 +845,7 @@ def _track_m(config, default: float) -> float:
     """`config`'s --depth-track-m, or `default` where it is not given; SystemExit when it is
     negative or not finite."""
     track_m = config.depth_track_m
-    if track_m is None:
-        return default
-    if not 0 <= track_m < float("inf"):
-        raise SystemExit(f"--depth-track-m must be a number >= 0, got {track_m}")
-    return track_m
+    return default if track_m is None else _nonnegative("--depth-track-m", track_m)
 
 
 def _escapes_first(config) -> int:
@@ -921,8 +915,7 @@ def _with_lookahead(policy, source: str, candidates: int, margin_m: float = 0.0)
 
     if candidates < 0:
         raise SystemExit(f"--lookahead-candidates must be >= 0, got {candidates}")
-    if not 0 <= margin_m < float("inf"):
-        raise SystemExit(f"--lookahead-margin-m must be a number >= 0, got {margin_m}")
+    _nonnegative("--lookahead-margin-m", margin_m)
     config = getattr(getattr(policy, "agent", None), "config", None)
     if getattr(config, "obs_source", None) != "obstacles":
         raise SystemExit(
@@ -1092,20 +1085,21 @@ def _preset_options(guard, config):
     )
 
 
+def _nonnegative(flag: str, value: float) -> float:
+    """`value` of the option `flag`; SystemExit when it is negative or not finite."""
+    if not 0 <= value < float("inf"):
+        raise SystemExit(f"{flag} must be a number >= 0, got {value}")
+    return value
+
+
 def _goal_zone_m(config) -> float:
-    """`config`'s --depth-goal-zone-m; SystemExit when it is negative or not finite."""
-    zone_m = config.depth_goal_zone_m
-    if not 0 <= zone_m < float("inf"):
-        raise SystemExit(f"--depth-goal-zone-m must be a number >= 0, got {zone_m}")
-    return zone_m
+    """`config`'s --depth-goal-zone-m (`_nonnegative`)."""
+    return _nonnegative("--depth-goal-zone-m", config.depth_goal_zone_m)
 
 
 def _noise_model_m(config) -> float:
-    """`config`'s --depth-noise-model-m; SystemExit when it is negative or not finite."""
-    noise_m = config.depth_noise_model_m
-    if not 0 <= noise_m < float("inf"):
-        raise SystemExit(f"--depth-noise-model-m must be a number >= 0, got {noise_m}")
-    return noise_m
+    """`config`'s --depth-noise-model-m (`_nonnegative`)."""
+    return _nonnegative("--depth-noise-model-m", config.depth_noise_model_m)
 
 
 def _table2_row_name(config: EvalConfig, name: str) -> str:
