@@ -348,29 +348,30 @@ class DepthShieldPlanner(DepthShield):
             return None
         solutions = wrap_joints(solutions, joints)
         clear = np.array([clearance(q) for q in solutions])
-        valid = None
+        at_goal = keep  # the clearance a goal configuration must keep
         if self.goal_zone_m > 0 and not (clear >= keep).any():
             # No goal configuration keeps the margin: within the goal zone, the goal margin.
-            relaxed, outside, zone2 = min(self.goal_margin_m, keep), keep, self.goal_zone_m**2
+            at_goal = min(self.goal_margin_m, keep)
+        zone2 = self.goal_zone_m**2
 
-            def valid(q: np.ndarray) -> bool:
-                value = clearance(q)
-                if value >= outside:
-                    return True
-                off = tip_position(q) - goal
-                return value >= relaxed and float(off @ off) < zone2
+        def valid(q: np.ndarray) -> bool:
+            """Keeps the margin, or (planning to a tighter goal) `at_goal` within the zone."""
+            value = clearance(q)
+            if value >= keep:
+                return True
+            if value < at_goal:
+                return False
+            off = tip_position(q) - goal
+            return float(off @ off) < zone2
 
-            keep = relaxed
-        solutions = solutions[clear >= keep]
+        solutions = solutions[clear >= at_goal]
         order = np.argsort(np.max(np.abs(solutions - joints), axis=1), kind="stable")
         candidates = solutions[order][: self.rrt.max_goal_candidates]
         shares = max(1, len(candidates))
         budget = self.rrt.time_limit_s / shares
         checks = None if self.rrt.max_checks is None else self.rrt.max_checks // shares
         for target in candidates:
-            result = plan_joint_path(
-                valid or (lambda q: clearance(q) >= keep), joints, target, self.rrt, budget, checks
-            )
+            result = plan_joint_path(valid, joints, target, self.rrt, budget, checks)
             if result.succeeded:
                 return result.waypoints
         return None
