@@ -341,6 +341,7 @@ CLAMGEN_ENV_OPTIONS = {
     "num_views": 0,
     "obs_mode": "joints",
     "include_obstacle_state": False,
+    "previous_action": False,
 }
 
 

@@ -24,8 +24,9 @@ def make(env_id, **kwargs):
         {"obs_mode": "joints"},
         {"obs_mode": "images", "num_views": 2, "image_size": SMALL},
         {"obs_mode": "both", "num_views": 3, "image_size": SMALL, "include_obstacle_state": True},
+        {"obs_mode": "joints", "previous_action": True},
     ],
-    ids=["joints", "images", "both"],
+    ids=["joints", "images", "both", "previous_action"],
 )
 def test_check_env(env_id, kwargs):
     env = gym.make(env_id, **kwargs)
@@ -155,6 +156,24 @@ def test_state_save_restore_continues_identically():
     for a, b in zip(first, second, strict=True):
         for key in ("observation", "achieved_goal", "images"):
             np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_previous_action_is_the_last_step_executed_and_survives_a_state_restore():
+    env = make(ENV_IDS[1], previous_action=True)
+    obs, _ = env.reset(seed=4)
+    np.testing.assert_array_equal(obs["previous_action"], np.zeros(6, np.float32))
+    for action in (np.full(6, 0.5), np.array([1.0, -1, 0.2, 0, 0.7, -0.3])):
+        obs, _, _, _, info = env.step(action)
+        np.testing.assert_array_equal(obs["previous_action"], info["executed_action"])
+    np.testing.assert_allclose(obs["previous_action"], [1.0, -1, 0.2, 0, 0.7, -0.3], atol=1e-5)
+    state = env.get_state()
+    env.step(np.zeros(6))
+    env.set_state(state)
+    np.testing.assert_allclose(env.observe()["previous_action"], obs["previous_action"])
+    assert np.all(env.reset(seed=5)[0]["previous_action"] == 0)
+    assert "previous_action" not in make(ENV_IDS[1]).reset(seed=4)[0]
+    with pytest.raises(ValueError, match="previous_action must be True or False"):
+        make(ENV_IDS[1], previous_action="yes")
 
 
 def test_render_images_moves_the_target_without_stepping():

@@ -357,6 +357,39 @@ def test_a_student_with_candidate_actions_trains_saves_and_acts(tmp_path, base_p
         Stage2Trainer(student)
 
 
+def test_a_student_reading_its_previous_action_stores_trains_and_acts_on_it(
+    tmp_path, base_policy, teacher
+):
+    student = privileged_config(tmp_path / "student", base_policy)
+    student = dataclasses.replace(
+        student,
+        env=dataclasses.replace(student.env, previous_action=True),
+        agent=dataclasses.replace(student.agent, previous_action=True),
+    )
+    settings = DistillSettings(
+        teacher=teacher,
+        iterations=2,
+        episodes_per_iteration=3,
+        updates_per_iteration=20,
+        num_eval_episodes=2,
+    )
+    distiller = Distiller(DistillConfig(student=student, distill=settings))
+    distiller.run(show_progress=False)
+    previous = distiller.data.arrays["previous_action"]
+    assert previous.shape == (len(distiller.data), 6) and np.any(previous != 0)
+    # The policy file's env options give the key, and the action depends on it.
+    policy, _, env_kwargs = load_policy(str(student.run_dir / POLICY_NAME))
+    assert env_kwargs["previous_action"] is True
+    obs, _ = distiller.data.batch(np.arange(1))
+    single = {k: v[0] for k, v in obs.items()}
+    assert np.allclose(policy.act(single), distiller.student.act(single, deterministic=True))
+    flipped = single | {"previous_action": -single["previous_action"] + 0.5}
+    assert not np.allclose(policy.act(single), policy.act(flipped))
+    # Without the env's observation the agent has nothing to read.
+    with pytest.raises(ValueError, match="needs env"):
+        Stage2Trainer(dataclasses.replace(student, env=privileged_config(tmp_path, "x").env))
+
+
 def test_target_clearance_is_the_distance_to_the_nearest_obstacle_box():
     # [is_box, is_cylinder, x, y, z, hx, hy, hz]: a 10 cm cube at the origin, one at x = 1 m.
     obstacles = np.array([[1, 0, 0, 0, 0, 0.05, 0.05, 0.05], [1, 0, 1, 0, 0, 0.05, 0.05, 0.05]])

@@ -153,6 +153,12 @@ class ResidualConfig:
     label trains the candidate nearest to it, so that a teacher's multimodal labels (an
     obstacle passed on either side) are not averaged. 1: one Gaussian (the paper; RL trains
     only this)."""
+    previous_action: bool = False
+    """Beyond the paper: the actor and critic also read the previous step's executed action
+    (the env's `previous_action` observation, `env.previous_action`) beside joints and goal, so
+    that a policy can keep to the way round an obstacle it has begun, where a teacher's labels
+    hold to a plan. The base and the state-regression target read joints and goal only.
+    False: the paper."""
     target_encoder: Literal["target", "online"] = "target"
     """Visual features the target critic reads for s': "target", its own Polyak-averaged copy
     of the encoder (CURL, SAC-AE, the paper); "online", the online encoder's no-grad features,
@@ -424,7 +430,9 @@ class ResidualAgent:
         self.device = torch.device(config.device)
         self.base = base
         self.action_dim = action_dim = base.action_dim
-        low_dim = base.obs_dim
+        # The networks' low-dim input: normalised joints + goal (the base's), then the previous
+        # action when the config asks for it.
+        low_dim = base.obs_dim + (action_dim if config.previous_action else 0)
         enc = config.encoder
         images = config.obs_source == "images"
         with torch.random.fork_rng(devices=[]):
@@ -460,7 +468,7 @@ class ResidualAgent:
                 feature_dim=feature_dim,
                 latent_dim=feature_dim + enc.low_dim_size,
                 action_dim=action_dim,
-                state_dim=low_dim,
+                state_dim=base.obs_dim,
                 num_views=enc.num_views if images else 0,
             )
             aux = build_aux_losses(config.aux, dims)
@@ -493,9 +501,11 @@ class ResidualAgent:
         """Pick, once, the pieces in which the variants differ."""
         cfg = self.config
         # The residual adds the base's action before the tanh; otherwise the actor acts alone.
-        self._base_mean = (lambda low: self.base_actor(low)[0]) if cfg.residual else _zero
+        self._base_mean = (
+            (lambda low: self.base_actor(self._true_state(low))[0]) if cfg.residual else _zero
+        )
         # Q = Q_base + Q_res (the residual, or a privileged base Q) or Q_res alone.
-        self._base_q = _call if cfg.uses_base_q else _zero_q
+        self._base_q = self._call_base_q if cfg.uses_base_q else _zero_q
         self._warmup_updates = cfg.warmup_updates if cfg.uses_base_q else 0
         # What the networks see of joints and goal: an image-only policy sees nothing of
         # them (the env still records them for relabelling), unless its critic is privileged.
@@ -561,8 +571,21 @@ class ResidualAgent:
 
     # ------------------------------------------------------------------ inputs
     def _state(self, obs: Mapping[str, Any]) -> torch.Tensor:
-        """The true normalised joints + goal (B, 9)."""
-        return self.normalizer(torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device))
+        """The networks' low-dim input: the true normalised joints + goal (B, 9), then the
+        previous action (B, 6) when `config.previous_action`."""
+        state = self.normalizer(torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device))
+        if not self.config.previous_action:
+            return state
+        previous = torch.as_tensor(np.asarray(obs["previous_action"]), device=self.device)
+        return torch.cat([state, previous.float()], -1)
+
+    def _true_state(self, low_dim: torch.Tensor) -> torch.Tensor:
+        """Normalised joints + goal of a low-dim input: what the base and the state-regression
+        target read."""
+        return low_dim[..., : self.base.obs_dim]
+
+    def _call_base_q(self, base_critic, low_dim: torch.Tensor, action: torch.Tensor):
+        return base_critic(self._true_state(low_dim), action)
 
     def _visual(self, obs: Mapping[str, Any], train: bool) -> torch.Tensor:
         """Images cropped to the encoder's size (random offsets when training), or poses."""
@@ -657,7 +680,7 @@ class ResidualAgent:
         if steps < 1 or batch_size < 1 or not lr > 0:
             raise ValueError(f"need steps, batch_size >= 1 and lr > 0, got {steps, batch_size, lr}")
         images = torch.as_tensor(np.asarray(obs["images"]), device=self.device)
-        states = self._state(obs)
+        states = self._true_state(self._state(obs))
         encoder, state_loss = self.critic.encoder, self.nets.aux["state"]
         optimizer = torch.optim.Adam([*encoder.parameters(), *state_loss.parameters()], lr=lr)
         crop = self.config.encoder.image_size
@@ -774,7 +797,7 @@ class ResidualAgent:
             visual=visual,
             action=x.action,
             collided=x.collided,
-            state=x.state,
+            state=self._true_state(x.state),
             encoder=self.critic.encoder,
             query_projections=projections,
             key_encoder=self.key_encoder,
@@ -840,7 +863,7 @@ class ResidualAgent:
             action, log_prob = tanh_gaussian_sample(mean, log_std, self._generator)
             if warming_up:
                 # Paper: during warm-up, maximise Q_base - alpha log pi to clone the base policy.
-                q = self.base_critic(low_dim, action)
+                q = self._call_base_q(self.base_critic, low_dim, action)
             else:
                 q = self._q(self.critic, self.base_critic, latent, low_dim, action)
             actor_loss = (alpha * log_prob - q.min(0).values).mean()
@@ -986,10 +1009,6 @@ def _zero(low_dim: torch.Tensor) -> float:
 
 def _zero_q(base_critic, low_dim: torch.Tensor, action: torch.Tensor) -> float:
     return 0.0
-
-
-def _call(base_critic, low_dim: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-    return base_critic(low_dim, action)
 
 
 class _frozen:

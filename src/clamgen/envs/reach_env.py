@@ -21,6 +21,9 @@ A `Dict` following the goal-conditioned convention:
   views). Depth is metric depth along the optical axis mapped linearly from `DEPTH_RANGE_M` =
   (0.3, 2.5) m onto 0..255 (clipped).
 - `obstacles`: (N, 8) float32, `Obstacles.as_array()`, only with `include_obstacle_state`.
+- `previous_action`: (6,) float32, the joint motion the previous step made, in action units
+  (`info["executed_action"]`: the commanded action where nothing stopped the arm), zeros after
+  a reset; only with `previous_action` (beyond the paper: a policy's memory of its last step).
 
 ## Rewards
 `-0.01` per step unless the tip is within `SUCCESS_DISTANCE_M` of the target (then 0), minus
@@ -84,6 +87,7 @@ class EnvState:
     target_velocity_mps: np.ndarray
     num_steps: int
     task: reach.Task | None = None
+    previous_action: np.ndarray | None = None
 
 
 class ReachEnv(gym.Env):
@@ -118,6 +122,8 @@ class ReachEnv(gym.Env):
             Drawn afresh every frame from a stream of its own (seeded by `reset(seed=...)`), so
             the tasks and the target's motion are those without noise; 0: exact depth (the
             paper's setting; beyond the paper otherwise).
+        previous_action: observe the previous step's executed action as `previous_action`
+            (beyond the paper: lets a policy keep to the way round an obstacle it has begun).
     """
 
     metadata: ClassVar[dict] = {
@@ -142,6 +148,7 @@ class ReachEnv(gym.Env):
         fine_depth_size: int = 0,
         zoom_views: bool = False,
         depth_noise_m: float = 0.0,
+        previous_action: bool = False,
     ) -> None:
         num_obstacles = _integer("num_obstacles", num_obstacles, 0, C.MAX_OBSTACLES)
         task_family = task_family or ("obstacles" if num_obstacles else "reach")
@@ -184,6 +191,8 @@ class ReachEnv(gym.Env):
             raise ValueError(f"depth_noise_m must be a finite number >= 0, got {depth_noise_m!r}")
         if depth_noise_m and not num_views:
             raise ValueError("depth_noise_m perturbs the views' depth: it needs num_views >= 1")
+        if not isinstance(previous_action, bool | np.bool_):
+            raise ValueError(f"previous_action must be True or False, got {previous_action!r}")
         if max_episode_steps is not None:
             max_episode_steps = _integer("max_episode_steps", max_episode_steps, 1)
         if not (
@@ -255,7 +264,11 @@ class ReachEnv(gym.Env):
             spaces["fine_depth"] = gym.spaces.Box(0, 255, shape, np.uint8)
         if include_obstacle_state:
             spaces["obstacles"] = gym.spaces.Box(-2.0, 2.0, (num_obstacles, 8), np.float32)
+        self.previous_action = bool(previous_action)
+        if self.previous_action:
+            spaces["previous_action"] = self.action_space
         self.observation_space = gym.spaces.Dict(spaces)
+        self._previous_action = np.zeros(ur5.NUM_JOINTS, np.float32)
 
         self._target_velocity = np.zeros(3)
         self._num_steps = 0
@@ -308,6 +321,7 @@ class ReachEnv(gym.Env):
         SimState(task.start_joints, task.target_position_m, task.obstacles).apply(self.scene)
         self._target_velocity = np.array(task.target_velocity_mps, dtype=np.float64)
         self._num_steps = 0
+        self._previous_action = np.zeros(ur5.NUM_JOINTS, np.float32)
         return self._observation(), self._reset_info()
 
     def step(self, action: np.ndarray):
@@ -316,6 +330,8 @@ class ReachEnv(gym.Env):
         joints = scene.data.qpos.copy()
         wanted = step_target(joints, action)
         reached, collided = scene.move_along(joints, wanted, COLLISION_CHECK_RESOLUTION_RAD)
+        executed = ((reached - joints) / MAX_JOINT_DELTA_RAD).astype(np.float32)
+        self._previous_action = np.clip(executed, -1.0, 1.0)
         self._move_target()
         self._num_steps += 1
 
@@ -330,7 +346,7 @@ class ReachEnv(gym.Env):
             "distance_m": distance,
             "reward_step": reward_step,
             "reward_collision": reward_collision,
-            "executed_action": ((reached - joints) / MAX_JOINT_DELTA_RAD).astype(np.float32),
+            "executed_action": executed,
         }
         terminated = success or (collided and self.collision_ends_episode)
         horizon = self.max_episode_steps
@@ -382,7 +398,11 @@ class ReachEnv(gym.Env):
     def get_state(self) -> EnvState:
         """A copy of the full state (simulator + target motion + step count)."""
         return EnvState(
-            SimState.capture(self.scene), self._target_velocity.copy(), self._num_steps, self._task
+            SimState.capture(self.scene),
+            self._target_velocity.copy(),
+            self._num_steps,
+            self._task,
+            self._previous_action.copy(),
         )
 
     def set_state(self, state: EnvState) -> None:
@@ -392,6 +412,8 @@ class ReachEnv(gym.Env):
         self._num_steps = state.num_steps
         if state.task is not None:
             self._task = state.task
+        if state.previous_action is not None:
+            self._previous_action = np.array(state.previous_action, np.float32)
 
     def observe(self) -> dict[str, np.ndarray]:
         """The observation of the current state (what `reset` or `step` would return here),
@@ -454,6 +476,8 @@ class ReachEnv(gym.Env):
             obs["fine_depth"] = depth_to_uint8(depth_m)[:, None]
         if self.include_obstacle_state:
             obs["obstacles"] = scene.obstacles.as_array()
+        if self.previous_action:
+            obs["previous_action"] = self._previous_action.copy()
         return obs
 
     def _noisy(self, depth_m: np.ndarray) -> np.ndarray:

@@ -164,6 +164,10 @@ class EnvConfig:
     (`ReachEnv(depth_noise_m=...)`; about 0.0015 for a Kinect v1, 0.01 for a RealSense D435).
     Image HER's re-rendered episodes get the same noise. The tables pick their own
     (`clamgen eval --depth-noise-m`). 0: exact depth (the paper)."""
+    previous_action: bool = False
+    """Beyond the paper: observations also hold the previous step's executed action
+    (`ReachEnv(previous_action=True)`), for a policy that reads it (`agent.previous_action`).
+    False: the paper."""
 
     def __post_init__(self) -> None:
         _require_int("env.num_envs", self.num_envs, 1)
@@ -206,6 +210,7 @@ class EnvConfig:
             "include_obstacle_state": self.include_obstacle_state,
             **({"zoom_views": True} if self.zoom_views else {}),
             **({"depth_noise_m": self.depth_noise_m} if self.depth_noise_m else {}),
+            **({"previous_action": True} if self.previous_action else {}),
         }
 
 

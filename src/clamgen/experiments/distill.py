@@ -215,9 +215,11 @@ def target_clearance_m(goals: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
     return np.linalg.norm(outside, axis=-1).min(axis=-1)
 
 
-def student_keys(obs_source: str) -> tuple[str, ...]:
-    """Observation keys a student of this `agent.obs_source` reads."""
-    return STUDENT_KEYS if obs_source == "images" else ("obstacles", *STUDENT_KEYS[1:])
+def student_keys(obs_source: str, previous_action: bool = False) -> tuple[str, ...]:
+    """Observation keys a student of this `agent.obs_source` (and `agent.previous_action`)
+    reads."""
+    keys = STUDENT_KEYS if obs_source == "images" else ("obstacles", *STUDENT_KEYS[1:])
+    return (*keys, "previous_action") if previous_action else keys
 
 
 class _Dataset:
@@ -276,7 +278,7 @@ class Distiller:
         # A student may read true obstacle poses instead of images (nothing rendered); the
         # pose loss is for vision students.
         self.vision = student.agent.obs_source == "images"
-        self.keys = student_keys(student.agent.obs_source)
+        self.keys = student_keys(student.agent.obs_source, student.agent.previous_action)
         torch.set_num_threads(student.loop.torch_threads)
         self.run_dir = Path(student.run_dir)
         # Collection envs show the teacher the poses too; the student's own env does not.

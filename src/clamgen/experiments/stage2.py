@@ -130,6 +130,8 @@ class Stage2Config:
             raise ValueError("pretrain.scenes > 0 needs image observations (agent.obs_source)")
         if not images and not self.env.include_obstacle_state:
             raise ValueError("agent.obs_source='obstacles' needs env.include_obstacle_state=True")
+        if self.agent.previous_action and not self.env.previous_action:
+            raise ValueError("agent.previous_action needs env.previous_action=True")
         if self.init_policy and self.agent.warmup_updates > 0:
             raise ValueError(
                 "init_policy with agent.warmup_updates > 0 would first clone the base policy "

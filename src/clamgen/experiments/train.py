@@ -649,6 +649,7 @@ def _env_snapshot(env: gym.Env) -> dict[str, np.ndarray]:
         "velocity": state.target_velocity_mps,
         "num_steps": np.array(state.num_steps),
         "rng": np.array(json.dumps(unwrapped.np_random.bit_generator.state)),
+        "previous_action": state.previous_action,
     }
     if task is not None:
         arrays |= {
@@ -678,7 +679,9 @@ def _restore_env(env: gym.Env, arrays: dict[str, np.ndarray]) -> None:
     unwrapped.reset()  # initialises np_random; everything is then overwritten
     unwrapped.np_random.bit_generator.state = json.loads(str(arrays["rng"]))
     sim = SimState(arrays["joints"], arrays["target"], obstacles)
-    unwrapped.set_state(EnvState(sim, arrays["velocity"], int(arrays["num_steps"]), task))
+    previous = arrays.get("previous_action")  # absent from checkpoints before it existed
+    state = EnvState(sim, arrays["velocity"], int(arrays["num_steps"]), task, previous)
+    unwrapped.set_state(state)
 
 
 def train(config: TrainConfig, show_progress: bool = True) -> dict[str, Any]:
