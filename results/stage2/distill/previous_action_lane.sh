@@ -4,13 +4,15 @@
 # and with the previous step's executed action as an input (priv-prev-sS: --env.previous-action
 # --agent.previous-action), seeds given, then each scored on validation block 550000 (300
 # blocked + 300 standard tasks; never test seeds). A finished run (summary.json) is not run
-# again; a killed one resumes after its last finished iteration.
+# again; a killed one resumes after its last finished iteration. KINDS="fixed50" or "prev" runs
+# one kind only (two lanes of three runs each); the scoring runs for the seeds whose two runs
+# have both finished.
 #   results/stage2/distill/previous_action_lane.sh SEED...
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
 for S in "$@"; do
-  for KIND in fixed50 prev; do
+  for KIND in ${KINDS:-fixed50 prev}; do
     RUN=runs/distill/priv-$KIND-s$S
     [ -f $RUN/summary.json ] && continue
     EXTRA=""; [ $KIND = prev ] && EXTRA="--env.previous-action --agent.previous-action"
@@ -23,6 +25,7 @@ for S in "$@"; do
   done
 done
 for S in "$@"; do
+  [ -f runs/distill/priv-fixed50-s$S/summary.json ] && [ -f runs/distill/priv-prev-s$S/summary.json ] || continue
   .venv/bin/python results/stage2/tune/validate.py runs/distill/priv-fixed50-s$S/policy.pt \
     runs/distill/priv-prev-s$S/policy.pt --num-tasks 300 --offset 550000
 done
