@@ -385,9 +385,13 @@ def test_a_student_reading_its_previous_action_stores_trains_and_acts_on_it(
     assert np.allclose(policy.act(single), distiller.student.act(single, deterministic=True))
     flipped = single | {"previous_action": -single["previous_action"] + 0.5}
     assert not np.allclose(policy.act(single), policy.act(flipped))
-    # Without the env's observation the agent has nothing to read.
+    # Without the env's observation the agent has nothing to read; reversed episodes would
+    # keep the forward previous actions, so RL refuses reversible HER with it.
     with pytest.raises(ValueError, match="needs env"):
         Stage2Trainer(dataclasses.replace(student, env=privileged_config(tmp_path, "x").env))
+    reversible = dataclasses.replace(student, replay=ReplayConfig(reversible_her=True))
+    with pytest.raises(ValueError, match="reversible HER"):
+        Stage2Trainer(reversible)
 
 
 def test_target_clearance_is_the_distance_to_the_nearest_obstacle_box():

@@ -199,6 +199,12 @@ class Stage2Trainer(Trainer):
                 "agent.actor_components > 1 is for distilled students (clamgen distill); "
                 "RL trains a single Gaussian"
             )
+        if config.agent.previous_action and (config.image_her or config.replay.reversible_her):
+            raise ValueError(
+                "agent.previous_action with reversible HER: a time-reversed episode's states "
+                "would keep the forward previous actions; set replay.reversible_her=False and "
+                "image_her=False"
+            )
         super().__init__(config, residual_stage(config))
 
 
