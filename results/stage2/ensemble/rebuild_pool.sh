@@ -8,12 +8,17 @@
 #   results/stage2/ensemble/rebuild_pool.sh --least-offset SEED...    (session 37: the same
 #   command with the lookahead's least-offset choice among clean plans, README "A teacher that
 #   bends least, on images"; runs/reseed/d3-least-seedS)
+#   results/stage2/ensemble/rebuild_pool.sh --previous-action SEED...    (session 50: the same
+#   command with the previous step's executed action as the student's input,
+#   ../distill/README.md "The previous action as an input"; runs/reseed/d3-prev-seedS)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
 PREFIX=d3-seed; EXTRA=
 if [ "$1" = --least-offset ]; then
   PREFIX=d3-least-seed; EXTRA=--distill.lookahead-least-offset; shift
+elif [ "$1" = --previous-action ]; then
+  PREFIX=d3-prev-seed; EXTRA="--env.previous-action --agent.previous-action"; shift
 fi
 for S in "$@"; do
   RUN=runs/reseed/$PREFIX$S
