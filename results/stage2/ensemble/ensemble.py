@@ -214,6 +214,10 @@ STUDENTS = {
             # deviation (`rebuild_pool.sh --least-offset`), the shipped recipe's regression
             # otherwise.
             ("3v-least4-s7", "d3-least4-48k-s7"),
+            # Session 50: four DAgger runs whose students read the previous action
+            # (`rebuild_pool.sh --previous-action`), the shipped recipe's regression otherwise.
+            ("3v-prev4-s7", "d3-prev4-48k-s7"),
+            ("3v-prev4-s8", "d3-prev4-48k-s8"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -313,6 +317,8 @@ COMPARED = {
         for name in ("3v-pool8-s7", "3v-pool8-s8", "3v-pool7-s7")
     },
     "3v-least4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
+    "3v-prev4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
+    "3v-prev4-s8": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 

@@ -11,7 +11,9 @@
 #         first, seed 8 beside it in session 36), pool7-sS (the fallback if the eight runs'
 #         cache is too slow: seeds 1..7), least4-sS (session 37: the four DAgger runs of
 #         rebuild_pool.sh --least-offset, whose lookahead keeps the clean plan of least
-#         deviation; 48000 steps)
+#         deviation; 48000 steps), prev4-sS (session 50: the four DAgger runs of
+#         rebuild_pool.sh --previous-action, whose students read the previous action; 48000
+#         steps)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -31,7 +33,11 @@ for NAME in "$@"; do
       ARGS="--updates 48000"; SRC=runs/reseed/d3-least-seed1
       POOL="runs/reseed/d3-least-seed2 runs/reseed/d3-least-seed3 runs/reseed/d3-least-seed4"
       CACHE=runs/pool-cache/d3-least4 ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS)" >&2; exit 2 ;;
+    prev4-s[0-9]*) SEED=${NAME#prev4-s}; OUT=runs/offline/d3-prev4-48k-s$SEED
+      ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
+      POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
+      CACHE=runs/pool-cache/d3-prev4 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
