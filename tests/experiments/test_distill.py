@@ -62,6 +62,11 @@ def distill_config(tmp_path, base_policy, teacher, **settings) -> DistillConfig:
     student = dataclasses.replace(
         student, env=dataclasses.replace(student.env, env_id="CLAMGen/ReachMixed-v0")
     )
+    return DistillConfig(student=student, distill=tiny_settings(teacher, **settings))
+
+
+def tiny_settings(teacher, **settings) -> DistillSettings:
+    """Two iterations of three episodes and four regression steps, unless `settings` say."""
     defaults = dict(
         teacher=teacher,
         iterations=2,
@@ -69,7 +74,7 @@ def distill_config(tmp_path, base_policy, teacher, **settings) -> DistillConfig:
         updates_per_iteration=4,
         num_eval_episodes=2,
     )
-    return DistillConfig(student=student, distill=DistillSettings(**{**defaults, **settings}))
+    return DistillSettings(**{**defaults, **settings})
 
 
 def test_dagger_labels_every_state_with_the_teacher_and_writes_a_policy(
@@ -167,13 +172,7 @@ def test_a_privileged_student_imitates_from_true_poses_without_rendering(
     teacher,
 ):
     student = privileged_config(tmp_path / "student", base_policy)
-    settings = DistillSettings(
-        teacher=teacher,
-        iterations=2,
-        episodes_per_iteration=3,
-        updates_per_iteration=4,
-        num_eval_episodes=2,
-    )
+    settings = tiny_settings(teacher)
     distiller = Distiller(DistillConfig(student=student, distill=settings))
     before = [p.detach().clone() for p in distiller.pose_head.parameters()]
     summary = distiller.run(show_progress=False)
@@ -336,13 +335,7 @@ def test_a_student_with_candidate_actions_trains_saves_and_acts(tmp_path, base_p
     student = dataclasses.replace(
         student, agent=dataclasses.replace(student.agent, actor_components=3)
     )
-    settings = DistillSettings(
-        teacher=teacher,
-        iterations=1,
-        episodes_per_iteration=3,
-        updates_per_iteration=20,
-        num_eval_episodes=2,
-    )
+    settings = tiny_settings(teacher, iterations=1, updates_per_iteration=20)
     distiller = Distiller(DistillConfig(student=student, distill=settings))
     distiller.run(show_progress=False)
     obs, labels = distiller.data.batch(np.arange(8))
@@ -366,13 +359,7 @@ def test_a_student_reading_its_previous_action_stores_trains_and_acts_on_it(
         env=dataclasses.replace(student.env, previous_action=True),
         agent=dataclasses.replace(student.agent, previous_action=True),
     )
-    settings = DistillSettings(
-        teacher=teacher,
-        iterations=2,
-        episodes_per_iteration=3,
-        updates_per_iteration=20,
-        num_eval_episodes=2,
-    )
+    settings = tiny_settings(teacher, updates_per_iteration=20)
     distiller = Distiller(DistillConfig(student=student, distill=settings))
     distiller.run(show_progress=False)
     previous = distiller.data.arrays["previous_action"]
