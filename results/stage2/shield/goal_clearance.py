@@ -112,12 +112,18 @@ def goal_clearances() -> list[float]:
     return best
 
 
-def blocked_success(path: str) -> np.ndarray:
+def blocked_row(path: str | Path) -> dict:
+    """The blocked-family row of a committed Table 2 file (relative to the repository or
+    absolute), checked to be the 200 blocked test tasks."""
     rows = json.loads((ROOT / path).read_text())["rows"]
     (row,) = [r for r in rows if r["family"] == "blocked"]
     if row["first_seed"] != TEST_SEEDS.start or row["num_tasks"] != NUM_TASKS:
         raise ValueError(f"{path}: not the 200 blocked test tasks")
-    return np.asarray(row["task_success"], bool)
+    return row
+
+
+def blocked_success(path: str) -> np.ndarray:
+    return np.asarray(blocked_row(path)["task_success"], bool)
 
 
 def main() -> None:

@@ -9,7 +9,8 @@ record success only). This script
 
 - checks each re-run against the committed row it repeats (tasks whose success differs);
 - splits the blocked tasks by the best true clearance any IK solution at the target keeps from
-  the obstacles (`../shield/goal_clearance.json`): under 1 cm ("tight", the margin the depth
+  the obstacles (`../shield/goal_clearance.json`, read by `goal_clearance.py`, whose committed
+  rows and words this script shares): under 1 cm ("tight", the margin the depth
   wrappers keep) and 1 cm or more;
 - reports per stratum success and collision rate, means over seeds, with a 95% bootstrap
   interval over tasks (`scipy.stats.bootstrap`, percentile, on the per-task means over seeds:
@@ -21,38 +22,34 @@ record success only). This script
 
 from __future__ import annotations
 
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import scipy.stats
 
 from clamgen.envs import CONTROL_DT_S
-from clamgen.experiments.config import TEST_SEEDS
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[2]
+sys.path.insert(0, str(HERE.parent / "shield"))  # the tight-goal description's helpers
+from goal_clearance import (  # noqa: E402
+    KINDS,
+    KINDS_1V,
+    SEED5,
+    WORDS,
+    blocked_row,
+    goal_clearances,
+)
+
 OUT = HERE / "strata.md"
 TIGHT_M = 0.01
 """Goals whose every IK solution comes within this of an obstacle are "tight" (the margin the
 depth shield and its planner keep)."""
-CLEARANCES = HERE.parent / "shield" / "goal_clearance.json"
 SEEDS = {3: (5, 7, 8, 9), 2: (5, 11, 12), 1: (5, 11, 12)}
 """Training seeds re-run per view count: those whose checkpoints are committed (the aims table
 also has seeds 7 and 8 of two views and 7, 8, 9 of one view, whose checkpoints are not)."""
 NAMES = {3: "3views", 2: "2views", 1: "1view"}
-WAYS = {
-    "alone": ("alone", "results/stage2/ensemble/{v}v-dagger+2_test.json", "student"),
-    "hybrid": ("hybrid", "results/table2/hybrid_residual-{name}.json", "hybrid"),
-    "escapes": ("escapes", "results/table2/escapes_residual-{name}.json", "escapes"),
-    "escapes_planner": (
-        "planner + escapes where it finds none",
-        "results/table2/escapes_planner_residual-{name}.json",
-        "escapes_planner",
-    ),
-}
-"""Per way of acting: its words, the shipped seed's committed row, the stem of the other seeds'
-committed rows in `results/stage2/ensemble/seeds/`."""
 BASELINES = {
     "rrt": ("RRT with the true scene", "results/table2/rrt.json"),
     "depth-rrt-3views": ("RRT on the 3-view depth map", "results/table2/depth_rrt_3views.json"),
@@ -62,18 +59,13 @@ BOOT_RESAMPLES = 10_000
 BOOT_SEED = 0
 
 
-def blocked_row(path: Path) -> dict:
-    rows = json.loads(path.read_text())["rows"]
-    (row,) = [r for r in rows if r["family"] == "blocked"]
-    if row["first_seed"] != TEST_SEEDS.start or row["num_tasks"] != 200:
-        raise ValueError(f"{path}: not the 200 blocked test tasks")
-    return row
-
-
 def committed(way: str, views: int, seed: int) -> Path:
+    """The committed row a re-run repeats: the shipped seed's (`goal_clearance.SEED5`) or
+    another seed's in `results/stage2/ensemble/seeds/`."""
     if seed == 5:
-        return ROOT / WAYS[way][1].format(v=views, name=NAMES[views])
-    return ROOT / f"results/stage2/ensemble/seeds/{WAYS[way][2]}{views}_seed{seed}.json"
+        return ROOT / SEED5[way].format(v=views, name=NAMES[views])
+    stem = (KINDS | KINDS_1V)[way]
+    return ROOT / f"results/stage2/ensemble/seeds/{stem}{views}_seed{seed}.json"
 
 
 def groups() -> dict[str, list[tuple[Path, Path]]]:
@@ -83,7 +75,7 @@ def groups() -> dict[str, list[tuple[Path, Path]]]:
         ways = ("alone", "hybrid", "escapes") + (("escapes_planner",) if views == 1 else ())
         for way in ways:
             word = "view" if views == 1 else "views"
-            name = f"{views} {word}, {WAYS[way][0]} (seeds {', '.join(map(str, seeds))})"
+            name = f"{views} {word}, {WORDS[way]} (seeds {', '.join(map(str, seeds))})"
             out[name] = [
                 (HERE / f"{way}{views}_seed{s}.json", committed(way, views, s)) for s in seeds
             ]
@@ -109,7 +101,7 @@ def interval(per_task: np.ndarray) -> str:
 
 
 def main() -> None:
-    best = np.asarray(json.loads(CLEARANCES.read_text())["best_clearance_m"])
+    best = np.asarray(goal_clearances())
     tight = best < TIGHT_M
     strata = ((tight, f"tight ({int(tight.sum())})"), (~tight, f"other ({int((~tight).sum())})"))
     lines = [
