@@ -567,10 +567,16 @@ def main() -> None:
         default=[*MEMBERS, MEAN],
     )
     parser.add_argument(
-        "--out", type=Path, default=OUT, help="the JSON-lines file (one per block of tasks)"
+        "--out",
+        type=Path,
+        default=OUT,
+        help="the JSON-lines file (one per block of tasks); a bare file name lies beside this "
+        "script, as the README's commands expect, wherever it is run from",
     )
     parser.add_argument("--summary", action="store_true", help="only print the comparison")
     args = parser.parse_args()
+    if args.out.parent == Path("."):
+        args.out = HERE / args.out
     if not args.summary:
         from clamgen.experiments.config import VALIDATION_SEEDS
 
