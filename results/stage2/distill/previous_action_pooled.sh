@@ -4,8 +4,9 @@
 # pooled and regressed afresh, as the vision recipe regresses its four runs (offline.py, 48000
 # updates), regression seed given, then scored on validation block 560000 (300 blocked + 300
 # standard tasks; never test seeds). A finished regression (policy.pt) is skipped; a killed one
-# resumes from its last 1000 updates. KINDS="fixed50" or "prev" regresses one kind only; the
-# scoring runs for the seeds whose two regressions have both finished.
+# resumes from its last 1000 updates. KINDS="fixed50" or "prev" regresses one kind only and
+# scores nothing (two lanes finishing together would score twice); without KINDS the scoring
+# runs for the seeds whose two regressions have both finished.
 #   results/stage2/distill/previous_action_pooled.sh SEED...
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
@@ -19,6 +20,7 @@ for S in "$@"; do
       --set seed=$S --torch-threads 1
   done
 done
+[ -n "$KINDS" ] && exit 0
 for S in "$@"; do
   [ -f runs/offline/priv-fixed50-pool3-s$S/policy.pt ] && [ -f runs/offline/priv-prev-pool3-s$S/policy.pt ] || continue
   .venv/bin/python results/stage2/tune/validate.py runs/offline/priv-fixed50-pool3-s$S/policy.pt \
