@@ -1,0 +1,19 @@
+#!/bin/bash
+# A privileged pilot read the way the vision recipe regresses (README, "The previous action,
+# pooled", session 51): the three privileged DAgger runs of one kind (runs/distill/priv-KIND-s1..3,
+# from previous_action_lane.sh or least_offset_lane.sh) pooled and regressed afresh (offline.py,
+# 48000 updates), one regression per seed given, into runs/offline/priv-KIND-pool3-sSEED. A
+# finished regression (policy.pt) is skipped; a killed one resumes from its last 1000 updates.
+# Scoring is validate.py's, on the block the README names.
+#   results/stage2/distill/pooled_pilot.sh KIND SEED...
+set -e
+cd "$(dirname "$0")/../../.."  # the repository root
+export MUJOCO_GL=egl OMP_NUM_THREADS=1
+KIND=$1; shift
+for S in "$@"; do
+  OUT=runs/offline/priv-$KIND-pool3-s$S
+  [ -f $OUT/policy.pt ] && continue
+  .venv/bin/python results/stage2/distill/offline.py runs/distill/priv-$KIND-s1 $OUT \
+    --pool runs/distill/priv-$KIND-s2 runs/distill/priv-$KIND-s3 --updates 48000 \
+    --set seed=$S --torch-threads 1
+done
