@@ -11,6 +11,7 @@ import torch
 from test_stage2 import LOOP, image_config
 from test_train import tiny_config
 
+from clamgen.agents.residual import imitation_error
 from clamgen.experiments.config import load_preset
 from clamgen.experiments.distill import (
     TARGET_CLIP,
@@ -164,6 +165,49 @@ def test_the_teacher_must_be_privileged_and_settings_are_checked(
         Distiller(DistillConfig(student=student, distill=DistillSettings(teacher="residual-1view")))
     with pytest.raises(ValueError, match=r"distill\.iterations"):
         DistillSettings(iterations=0)
+    with pytest.raises(ValueError, match=r"distill\.action_loss_weight"):
+        DistillSettings(action_loss_weight=-1.0)
+    with pytest.raises(ValueError, match="both 0"):
+        DistillSettings(pre_squash_loss_weight=0.0)
+
+
+def test_the_loss_after_the_tanh_weighs_errors_by_the_actions_they_change():
+    # One pre-squash error of 1, between two saturated values and around zero.
+    saturated = imitation_error(torch.tensor([[2.5]]), torch.tensor([[3.5]]), 0.0, 1.0)
+    centred = imitation_error(torch.tensor([[0.0]]), torch.tensor([[1.0]]), 0.0, 1.0)
+    assert float(centred) == pytest.approx(np.tanh(1.0) ** 2)
+    assert float(saturated) < float(centred) / 100
+    for mean, target in (([[2.5]], [[3.5]]), ([[0.0]], [[1.0]])):
+        assert float(imitation_error(torch.tensor(mean), torch.tensor(target))) == 1.0
+    # The terms add with their weights.
+    mean, target = torch.tensor([[0.2, -2.9]]), torch.tensor([[-0.4, 3.0]])
+    both = imitation_error(mean, target, 0.05, 2.0)
+    parts = 0.05 * imitation_error(mean, target) + 2.0 * imitation_error(mean, target, 0.0, 1.0)
+    assert float(both) == pytest.approx(float(parts))
+
+
+def test_a_student_regresses_with_the_loss_after_the_tanh(tmp_path, base_policy, teacher):
+    student = privileged_config(tmp_path / "student", base_policy)
+    weights = dict(pre_squash_loss_weight=0.05, action_loss_weight=1.0)
+    settings = tiny_settings(teacher, iterations=1, **weights)
+    distiller = Distiller(DistillConfig(student=student, distill=settings))
+    chunk, _ = distiller.collect_iteration(1.0, 0, show_progress=False)
+    distiller.data.add(chunk)
+    obs, labels = distiller.data.batch(np.arange(min(len(distiller.data), 16)))
+    labels = torch.as_tensor(labels)
+
+    def action_error() -> float:
+        # A privileged student: no random crops, the loss is a function of the weights.
+        with torch.no_grad():
+            return float(distiller.student.imitation_loss(obs, labels, 0.0, 1.0)[0])
+
+    with torch.no_grad():
+        mean = torch.as_tensor(distiller.student.mean_action(obs))
+        loss = distiller.student.imitation_loss(obs, labels, 0.05, 1.0)[0]
+    assert float(loss) == pytest.approx(float(imitation_error(mean, labels, 0.05, 1.0)), rel=1e-5)
+    before = action_error()
+    distiller.regress(60, 0, show_progress=False)
+    assert action_error() < before
 
 
 def test_a_privileged_student_imitates_from_true_poses_without_rendering(

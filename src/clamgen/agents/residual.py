@@ -417,6 +417,23 @@ class ResidualNetworks(nn.Module):
         return (*self.policy, *in_policy)
 
 
+def imitation_error(
+    mean: torch.Tensor,
+    target: torch.Tensor,
+    pre_squash_weight: float = 1.0,
+    action_weight: float = 0.0,
+) -> torch.Tensor:
+    """A student's imitation loss on its pre-squash means `mean` against the labels `target`
+    (both (B, A), before the tanh): `pre_squash_weight` times their mean squared error plus
+    `action_weight` times the mean squared error of their tanh, the actions taken. Before the
+    tanh an error costs the same everywhere; after it, what it changes in the action (almost
+    nothing between two saturated values)."""
+    loss = pre_squash_weight * torch.mean((mean - target) ** 2)
+    if action_weight:
+        loss = loss + action_weight * torch.mean((torch.tanh(mean) - torch.tanh(target)) ** 2)
+    return loss
+
+
 class ResidualAgent:
     """CLAMGen's stage-2 agent; a policy in the `act(obs) -> action` sense.
 
@@ -767,23 +784,31 @@ class ResidualAgent:
         return self._pre_squash(visual, self._actor_view(self._state(obs)))[0].cpu().numpy()
 
     def imitation_loss(
-        self, obs: Mapping[str, Any], target_mean: torch.Tensor
+        self,
+        obs: Mapping[str, Any],
+        target_mean: torch.Tensor,
+        pre_squash_weight: float = 1.0,
+        action_weight: float = 0.0,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(loss, visual encoding): the mean squared error between this policy's pre-squash
-        mean and `target_mean` (B, A) (with `actor_components` > 1: the candidates'
-        winner-takes-all loss, `MixtureActor`), on random crops with view dropout as in
-        training, and the encoding it was computed from; gradients reach the encoder and the
-        actor (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
+        """(loss, visual encoding): `pre_squash_weight` times the mean squared error between
+        this policy's pre-squash mean and `target_mean` (B, A), plus `action_weight` times the
+        same error after the tanh, between the actions taken (with `actor_components` > 1:
+        the candidates' winner-takes-all loss, `MixtureActor`, pre-squash only), on random crops
+        with view dropout as in training, and the encoding it was computed from; gradients
+        reach the encoder and the actor (behaviour cloning of a teacher,
+        `clamgen.experiments.distill`)."""
         visual_in = self._visual(obs, train=True)
         visual = self.critic.encoder(visual_in, self._view_mask(len(target_mean)))
         low_dim = self._actor_view(self._state(obs))
         if isinstance(self.actor.policy, MixtureActor):
+            if action_weight:
+                raise ValueError("a mixture actor's imitation loss is pre-squash only")
             # The candidates regress the label's residual over the base.
             features = self.actor.features(visual, low_dim)
             target = target_mean - self._base_mean(low_dim)
             return self.actor.policy.imitation_loss(features, target), visual
         mean, _ = self._pre_squash(visual, low_dim)
-        return torch.mean((mean - target_mean) ** 2), visual
+        return imitation_error(mean, target_mean, pre_squash_weight, action_weight), visual
 
     # ------------------------------------------------------------------ update
     def update(self, batch: Batch) -> dict[str, float]:

@@ -149,6 +149,18 @@ class DistillSettings:
     near_target_m: float = 0.02
     """The distance (m) from the target to the nearest obstacle's axis-aligned box under which
     a state counts as near for `near_target_weight`."""
+    pre_squash_loss_weight: float = 1.0
+    """Weight of the imitation loss's mean squared error before the tanh, between the
+    student's pre-squash mean and the label (every run before `action_loss_weight` was added:
+    1, alone)."""
+    action_loss_weight: float = 0.0
+    """Weight of the mean squared error after the tanh, between the actions the student and
+    the label take (beyond the paper; 0: off). Labels are clipped at +-TARGET_CLIP before the
+    tanh and a quarter of their components lie beyond 2 (tanh 0.96, a nearly full step), where
+    a pre-squash error of 1 moves the action by under 0.1 but costs as much as anywhere: the
+    pre-squash loss spends about half its weight there. After the tanh, errors weigh what they
+    move the arm; a small `pre_squash_loss_weight` beside it keeps a gradient on a saturated
+    mean of the wrong sign."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -185,6 +197,14 @@ class DistillSettings:
             raise ValueError(f"distill.pose_weight must be a number >= 0, got {self.pose_weight}")
         if not self.lr > 0:
             raise ValueError(f"distill.lr must be > 0, got {self.lr}")
+        for name in ("pre_squash_loss_weight", "action_loss_weight"):
+            if not 0 <= getattr(self, name) < float("inf"):
+                raise ValueError(f"distill.{name} must be a number >= 0, got {getattr(self, name)}")
+        if self.pre_squash_loss_weight == 0 and self.action_loss_weight == 0:
+            raise ValueError(
+                "distill.pre_squash_loss_weight and distill.action_loss_weight are both 0: "
+                "the student would learn nothing"
+            )
         if not 0 < self.near_target_weight < float("inf"):
             raise ValueError(
                 f"distill.near_target_weight must be a number > 0, got {self.near_target_weight}"
@@ -507,7 +527,12 @@ class Distiller:
                     group["lr"] = 0.5 * lr * (1 + np.cos(np.pi * step / steps))
             index = self.batch_index(batch_size)
             obs, labels = self.data.batch(index)
-            loss, visual = self.student.imitation_loss(obs, torch.as_tensor(labels))
+            loss, visual = self.student.imitation_loss(
+                obs,
+                torch.as_tensor(labels),
+                pre_squash_weight=self.config.distill.pre_squash_loss_weight,
+                action_weight=self.config.distill.action_loss_weight,
+            )
             if self._pose_loss_on():
                 poses = torch.as_tensor(self.data.poses(index))
                 loss = loss + self.config.distill.pose_weight * pose_loss(
