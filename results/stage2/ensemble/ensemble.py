@@ -218,6 +218,9 @@ STUDENTS = {
             # (`rebuild_pool.sh --previous-action`), the shipped recipe's regression otherwise.
             ("3v-prev4-s7", "d3-prev4-48k-s7"),
             ("3v-prev4-s8", "d3-prev4-48k-s8"),
+            # Session 52: prev4's regression with the loss after the tanh (`lever_lane.sh
+            # tanh-prev4-sS`; distill README, "The loss after the tanh").
+            ("3v-tanh-prev4-s7", "d3-tanh-prev4-48k-s7"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -319,6 +322,7 @@ COMPARED = {
     "3v-least4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s8": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
+    "3v-tanh-prev4-s7": ("3v-prev4-s7", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 
