@@ -167,6 +167,8 @@ def test_the_teacher_must_be_privileged_and_settings_are_checked(
         DistillSettings(iterations=0)
     with pytest.raises(ValueError, match=r"distill\.action_loss_weight"):
         DistillSettings(action_loss_weight=-1.0)
+    with pytest.raises(ValueError, match=r"distill\.action_loss_kind"):
+        DistillSettings(action_loss_kind="huber")
     with pytest.raises(ValueError, match="both 0"):
         DistillSettings(pre_squash_loss_weight=0.0)
 
@@ -184,6 +186,17 @@ def test_the_loss_after_the_tanh_weighs_errors_by_the_actions_they_change():
     both = imitation_error(mean, target, 0.05, 2.0)
     parts = 0.05 * imitation_error(mean, target) + 2.0 * imitation_error(mean, target, 0.0, 1.0)
     assert float(both) == pytest.approx(float(parts))
+    # The absolute error after the tanh: the median of labels that disagree, not their mean.
+    labels = torch.tensor([[-2.0], [-2.0], [1.0]])
+
+    def best(absolute: bool) -> float:
+        grid = torch.linspace(-3, 3, 601)[:, None, None].expand(-1, 3, 1)
+        costs = [float(imitation_error(m, labels, 0.0, 1.0, absolute)) for m in grid]
+        return float(grid[int(np.argmin(costs)), 0, 0])
+
+    assert best(absolute=True) == pytest.approx(-2.0)
+    mean_action = np.arctanh(np.mean(np.tanh([-2.0, -2.0, 1.0])))  # -0.41, between the two
+    assert best(absolute=False) == pytest.approx(mean_action, abs=0.01)
 
 
 def test_a_student_regresses_with_the_loss_after_the_tanh(tmp_path, base_policy, teacher):

@@ -14,7 +14,8 @@
 #         deviation; 48000 steps), prev4-sS (session 50: the four DAgger runs of
 #         rebuild_pool.sh --previous-action, whose students read the previous action; 48000
 #         steps), tanh-prev4-sS (session 52: prev4's regression with the loss after the tanh,
-#         distill README "The loss after the tanh")
+#         distill README "The loss after the tanh"), l1-prev4-sS (the same with the absolute
+#         error after the tanh)
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -42,7 +43,12 @@ for NAME in "$@"; do
       ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
       POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
       CACHE=runs/pool-cache/d3-prev4; SETS="action_loss_weight=1 pre_squash_loss_weight=0.05" ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS)" >&2; exit 2 ;;
+    l1-prev4-s[0-9]*) SEED=${NAME#l1-prev4-s}; OUT=runs/offline/d3-l1-prev4-48k-s$SEED
+      ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
+      POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
+      CACHE=runs/pool-cache/d3-prev4
+      SETS="action_loss_weight=1 pre_squash_loss_weight=0.05 action_loss_kind=absolute" ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS, l1-prev4-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \

@@ -422,15 +422,19 @@ def imitation_error(
     target: torch.Tensor,
     pre_squash_weight: float = 1.0,
     action_weight: float = 0.0,
+    action_absolute: bool = False,
 ) -> torch.Tensor:
     """A student's imitation loss on its pre-squash means `mean` against the labels `target`
     (both (B, A), before the tanh): `pre_squash_weight` times their mean squared error plus
-    `action_weight` times the mean squared error of their tanh, the actions taken. Before the
-    tanh an error costs the same everywhere; after it, what it changes in the action (almost
-    nothing between two saturated values)."""
+    `action_weight` times the mean squared error of their tanh, the actions taken (the mean
+    absolute error with `action_absolute`: a median of the labels where they disagree,
+    instead of their mean). Before the tanh an error costs the same everywhere; after it,
+    what it changes in the action (almost nothing between two saturated values)."""
     loss = pre_squash_weight * torch.mean((mean - target) ** 2)
     if action_weight:
-        loss = loss + action_weight * torch.mean((torch.tanh(mean) - torch.tanh(target)) ** 2)
+        error = torch.tanh(mean) - torch.tanh(target)
+        error = error.abs() if action_absolute else error**2
+        loss = loss + action_weight * torch.mean(error)
     return loss
 
 
@@ -789,10 +793,12 @@ class ResidualAgent:
         target_mean: torch.Tensor,
         pre_squash_weight: float = 1.0,
         action_weight: float = 0.0,
+        action_absolute: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, visual encoding): `pre_squash_weight` times the mean squared error between
         this policy's pre-squash mean and `target_mean` (B, A), plus `action_weight` times the
-        same error after the tanh, between the actions taken (with `actor_components` > 1:
+        same error after the tanh, between the actions taken (its absolute value with
+        `action_absolute`; `imitation_error`) (with `actor_components` > 1:
         the candidates' winner-takes-all loss, `MixtureActor`, pre-squash only), on random crops
         with view dropout as in training, and the encoding it was computed from; gradients
         reach the encoder and the actor (behaviour cloning of a teacher,
@@ -808,7 +814,8 @@ class ResidualAgent:
             target = target_mean - self._base_mean(low_dim)
             return self.actor.policy.imitation_loss(features, target), visual
         mean, _ = self._pre_squash(visual, low_dim)
-        return imitation_error(mean, target_mean, pre_squash_weight, action_weight), visual
+        loss = imitation_error(mean, target_mean, pre_squash_weight, action_weight, action_absolute)
+        return loss, visual
 
     # ------------------------------------------------------------------ update
     def update(self, batch: Batch) -> dict[str, float]:

@@ -63,6 +63,8 @@ from clamgen.experiments.train import POLICY_NAME, MetricLogger, make_env
 # Teacher labels: pre-squash means clipped to this (tanh(3) = 0.995, a saturated step); the
 # lookahead teacher's labels and rollouts use the same bound.
 TARGET_CLIP = lookahead.PRE_SQUASH_CLIP
+# What `DistillSettings.action_loss_kind` may be.
+ACTION_LOSS_KINDS = ("squared", "absolute")
 # Env reset seeds of distillation episodes: training seeds far from the RL runs' (loop seed *
 # 1000 + env index) and from results/stage2/tune/distill.py's.
 DISTILL_SEED_BASE = 800_000_000
@@ -161,6 +163,11 @@ class DistillSettings:
     pre-squash loss spends about half its weight there. After the tanh, errors weigh what they
     move the arm; a small `pre_squash_loss_weight` beside it keeps a gradient on a saturated
     mean of the wrong sign."""
+    action_loss_kind: str = "squared"
+    """The error after the tanh that `action_loss_weight` weighs: "squared" (its mean square:
+    where labels at nearby states disagree, their mean) or "absolute" (its mean absolute
+    value: per component, their median, which keeps the side most labels take where they
+    pass an obstacle both ways)."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -200,6 +207,11 @@ class DistillSettings:
         for name in ("pre_squash_loss_weight", "action_loss_weight"):
             if not 0 <= getattr(self, name) < float("inf"):
                 raise ValueError(f"distill.{name} must be a number >= 0, got {getattr(self, name)}")
+        if self.action_loss_kind not in ACTION_LOSS_KINDS:
+            raise ValueError(
+                f"distill.action_loss_kind must be one of {ACTION_LOSS_KINDS}, "
+                f"got {self.action_loss_kind!r}"
+            )
         if self.pre_squash_loss_weight == 0 and self.action_loss_weight == 0:
             raise ValueError(
                 "distill.pre_squash_loss_weight and distill.action_loss_weight are both 0: "
@@ -532,6 +544,7 @@ class Distiller:
                 torch.as_tensor(labels),
                 pre_squash_weight=self.config.distill.pre_squash_loss_weight,
                 action_weight=self.config.distill.action_loss_weight,
+                action_absolute=self.config.distill.action_loss_kind == "absolute",
             )
             if self._pose_loss_on():
                 poses = torch.as_tensor(self.data.poses(index))
