@@ -41,7 +41,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -163,7 +163,7 @@ class DistillSettings:
     pre-squash loss spends about half its weight there. After the tanh, errors weigh what they
     move the arm; a small `pre_squash_loss_weight` beside it keeps a gradient on a saturated
     mean of the wrong sign."""
-    action_loss_kind: str = "squared"
+    action_loss_kind: Literal["squared", "absolute"] = "squared"
     """The error after the tanh that `action_loss_weight` weighs: "squared" (its mean square:
     where labels at nearby states disagree, their mean) or "absolute" (its mean absolute
     value: per component, their median, which keeps the side most labels take where they
