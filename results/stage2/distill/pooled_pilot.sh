@@ -10,6 +10,8 @@
 # settings, the output then runs/offline/priv-KIND-TAG-pool3-sSEED, e.g.
 #   TAG=tanh SETS="action_loss_weight=1 pre_squash_loss_weight=0.05" \
 #       results/stage2/distill/pooled_pilot.sh fixed50 7
+# One block, read whole before it runs: the script can be edited while a lane runs it.
+{
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -22,3 +24,5 @@ for S in "$@"; do
     --pool runs/distill/priv-$KIND-s2 runs/distill/priv-$KIND-s3 --updates 48000 \
     --set seed=$S $SETS --torch-threads 1
 done
+exit
+}

@@ -322,7 +322,7 @@ COMPARED = {
     "3v-least4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s8": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
-    "3v-tanh-prev4-s7": ("3v-prev4-s7", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
+    "3v-tanh-prev4-s7": ("3v-prev4-s7", "3v-prev4-s8", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 

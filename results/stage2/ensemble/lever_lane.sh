@@ -16,6 +16,8 @@
 #         steps), tanh-prev4-sS (session 52: prev4's regression with the loss after the tanh,
 #         distill README "The loss after the tanh"), l1-prev4-sS (the same with the absolute
 #         error after the tanh)
+# One block, read whole before it runs: the script can be edited while a lane runs it.
+{
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -54,3 +56,5 @@ for NAME in "$@"; do
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
     --pool $POOL --set seed=$SEED $SETS --pool-cache $CACHE
 done
+exit
+}

@@ -11,6 +11,8 @@
 #   results/stage2/ensemble/rebuild_pool.sh --previous-action SEED...    (session 50: the same
 #   command with the previous step's executed action as the student's input,
 #   ../distill/README.md "The previous action as an input"; runs/reseed/d3-prev-seedS)
+# One block, read whole before it runs: the script can be edited while a lane runs it.
+{
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -30,3 +32,5 @@ for S in "$@"; do
     --distill.lookahead-fixed-offsets $EXTRA --env.num-views 3 --agent.encoder.num-views 3 \
     --distill.seed $S --loop.torch-threads 1 --run-dir $RUN
 done
+exit
+}

@@ -8,6 +8,8 @@
 # is skipped, an unfinished one resumes from its last 1000 updates, a continuation from its
 # last iteration.
 #   results/stage2/ensemble/seed_lane.sh VIEWS SEED...    (VIEWS: 3, 2 or 1)
+# One block, read whole before it runs: the script can be edited while a lane runs it.
+{
 set -e
 cd "$(dirname "$0")/../../.."  # the repository root
 export MUJOCO_GL=egl OMP_NUM_THREADS=1
@@ -30,3 +32,5 @@ for S in "$@"; do
   fi
   .venv/bin/python results/stage2/distill/continue_dagger.py $OUT ${OUT}-dagger --iterations 2 --updates 6000 --new-share 0.2 --seed $S --torch-threads 1 --pool-cache $CACHE
 done
+exit
+}
