@@ -795,14 +795,11 @@ class ResidualAgent:
         action_weight: float = 0.0,
         action_absolute: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(loss, visual encoding): `pre_squash_weight` times the mean squared error between
-        this policy's pre-squash mean and `target_mean` (B, A), plus `action_weight` times the
-        same error after the tanh, between the actions taken (its absolute value with
-        `action_absolute`; `imitation_error`) (with `actor_components` > 1:
-        the candidates' winner-takes-all loss, `MixtureActor`, pre-squash only), on random crops
-        with view dropout as in training, and the encoding it was computed from; gradients
-        reach the encoder and the actor (behaviour cloning of a teacher,
-        `clamgen.experiments.distill`)."""
+        """(loss, visual encoding): `imitation_error` of this policy's pre-squash mean against
+        `target_mean` (B, A), with its weights (with `actor_components` > 1: the candidates'
+        winner-takes-all loss, `MixtureActor`, before the tanh only), on random crops with view
+        dropout as in training, and the encoding it was computed from; gradients reach the
+        encoder and the actor (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
         visual_in = self._visual(obs, train=True)
         visual = self.critic.encoder(visual_in, self._view_mask(len(target_mean)))
         low_dim = self._actor_view(self._state(obs))
