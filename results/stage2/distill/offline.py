@@ -110,7 +110,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("out", type=Path)
-    parser.add_argument("--updates", type=int, default=24_000)
+    parser.add_argument("--updates", type=int, default=24_000, help="regression steps (>= 1)")
     parser.add_argument("--iterations", type=int, default=None, help="the run's first K only")
     parser.add_argument("--pool", type=Path, nargs="*", default=[], help="other runs' data too")
     parser.add_argument(
@@ -223,12 +223,15 @@ def main() -> None:
     )
     parser.add_argument(
         "--set",
-        nargs="*",
+        nargs="+",
+        action="extend",
         default=[],
         metavar="FIELD=VALUE",
-        help="distill settings to change, e.g. pose_length_scale_m=0.05",
+        help="distill settings to change, e.g. pose_length_scale_m=0.05 (repeatable)",
     )
     args = parser.parse_args()
+    if args.updates < 1:
+        parser.error(f"--updates must be at least 1, got {args.updates}")
     saved = json.loads((args.run_dir / "config.json").read_text())
     student = config_from_json(json.dumps(saved["student"]), Stage2Config)
     student = dataclasses.replace(student, run_dir=args.out)
@@ -259,10 +262,21 @@ def main() -> None:
         student = dataclasses.replace(student, agent=agent, env=env)
         saved["student"] = json.loads(config_to_json(student))
     changes = {}
+    defaults = DistillSettings()
     for item in args.set:
         name, _, value = item.partition("=")
-        kind = type(getattr(DistillSettings(), name))
-        changes[name] = kind(value)
+        if not hasattr(defaults, name) or not value:
+            parser.error(f"--set {item}: not FIELD=VALUE with a distill setting's name")
+        kind = type(getattr(defaults, name))
+        if kind is bool:
+            if value.lower() not in ("true", "false"):
+                parser.error(f"--set {item}: {name} is true or false")
+            changes[name] = value.lower() == "true"
+        else:
+            try:
+                changes[name] = kind(value)
+            except ValueError:
+                parser.error(f"--set {item}: {name} takes a {kind.__name__}")
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
     heads = {  # options that regress another head beside the student, and their distillers
