@@ -105,6 +105,11 @@ BURST = {
 }
 """Session 29: a 3-view seed with random escapes from its stalls (`stall.StallBurst`, its
 defaults but for the options given)."""
+NEAR_BASE = {
+    f"3v-reg-s{seed}+base{cm}": (f"3v-reg-s{seed}", cm / 100) for seed in (7, 8, 9) for cm in (3, 5)
+}
+"""Session 52: a 3-view regression acting with its base alone within the given distance (m) of
+the target (`NearTargetBase`; README, "The base near the target")."""
 AMPLIFIED = {"3v-s5+amplify": "3v-s5"}
 """Session 29: a 3-view seed whose command, while its episode has stalled 10 steps or more, is
 scaled up until its largest joint command is 1 (`StallSwitch` to `SaturatedPolicy`)."""
@@ -322,6 +327,7 @@ COMPARED = {
     "3v-least4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s8": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
+    **{name: (student,) for name, (student, _) in NEAR_BASE.items()},
     "3v-tanh-prev4-s7": ("3v-prev4-s7", "3v-prev4-s8", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
@@ -340,6 +346,7 @@ NAMES = (
     *BURST,
     *AMPLIFIED,
     *LEARNED_SHIELD,
+    *NEAR_BASE,
 )
 """Every policy by name, in the summary's order."""
 
@@ -380,6 +387,29 @@ class CropMeanPolicy:
         )
         with torch.inference_mode():
             return np.tanh(self.agent.mean_action(batch).mean(0))
+
+
+class NearTargetBase:
+    """A residual student acting with its base alone (the tanh of the stage-1 joint policy's
+    mean, which the residual is added to) while the tip is within `radius_m` of the target,
+    as itself farther out. No geometry is read: the distance is the observation's goal minus
+    its achieved goal."""
+
+    def __init__(self, policy, radius_m: float) -> None:
+        self.policy, self.agent, self.radius_m = policy, policy.agent, radius_m
+
+    def reset(self, env=None) -> None:
+        self.policy.reset(env)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        import torch
+
+        if np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"]) >= self.radius_m:
+            return self.policy.act(obs)
+        batch = {k: np.asarray(v)[None] for k, v in obs.items()}
+        with torch.inference_mode():
+            low_dim = self.agent._actor_view(self.agent._state(batch))
+            return np.tanh(self.agent._base_mean(low_dim)[0].cpu().numpy())
 
 
 class EscapeChooser:
@@ -488,6 +518,10 @@ def load(name: str):
         base, options = BURST[name]
         policy, kwargs = load(base)
         return StallBurst(policy, **options), kwargs
+    if name in NEAR_BASE:
+        student, radius_m = NEAR_BASE[name]
+        policy, kwargs = load(student)
+        return NearTargetBase(policy, radius_m), kwargs
     if name in AMPLIFIED:
         from clamgen.experiments.stall import StallSwitch
 
