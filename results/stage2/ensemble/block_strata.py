@@ -24,7 +24,7 @@ from clamgen.envs import ReachEnv
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "shield"))
-from goal_clearance import STRATA, solution_clearances  # noqa: E402 (the sibling script's)
+from goal_clearance import solution_clearances, strata  # noqa: E402 (the sibling script's)
 
 LINES = HERE / "ensemble_350000.jsonl"
 CACHE = HERE / "block_strata_350000.json"
@@ -71,33 +71,32 @@ def best_clearances(seeds: list[int]) -> np.ndarray:
     return np.asarray(best)
 
 
+def student_row(name: str, line: dict, masks: list[np.ndarray]) -> str:
+    """A student's table row: its blocked successes (collisions) in all and per stratum."""
+    success = np.asarray(line["success"], bool)
+    collided = np.asarray(line["collided"], bool)
+    every = np.ones_like(success)
+    cells = [f"{int(success[m].sum())} ({int(collided[m].sum())})" for m in (every, *masks)]
+    return f"| {name} | " + " | ".join(cells) + " |"
+
+
 def main() -> None:
     lines = blocked_lines()
     seeds = lines[STUDENTS[0]]["seeds"]
     if any(line["seeds"] != seeds for line in lines.values()):
         raise ValueError(f"{LINES}: the students were scored on different tasks")
     best = best_clearances(seeds)
-    masks = [(low <= best) & (best < high) for low, high, _ in STRATA]
-    counts = zip(STRATA, masks, strict=True)
-    header = " | ".join(f"{name} ({int(m.sum())} tasks)" for (_, _, name), m in counts)
+    masks, header = strata(best)
     rows = [
         "Block 350000's blocked validation tasks by the best true clearance of the goal's IK "
         "solutions (`block_strata.py`); per student, successes (collisions) in each stratum.",
         "",
         f"| student | all {len(seeds)} | {header} |",
-        "|---|---|" + "---|" * len(STRATA),
+        "|---|---|" + "---|" * len(masks),
     ]
-    for name in STUDENTS:
-        if name not in lines:
-            continue
-        success = np.asarray(lines[name]["success"], bool)
-        collided = np.asarray(lines[name]["collided"], bool)
-        cells = [f"{int(success[m].sum())} ({int(collided[m].sum())})" for m in masks]
-        total = f"{int(success.sum())} ({int(collided.sum())})"
-        rows.append(f"| {name} | {total} | " + " | ".join(cells) + " |")
-    text = "\n".join(rows) + "\n"
-    OUT.write_text(text)
-    print(text)
+    rows += [student_row(name, lines[name], masks) for name in STUDENTS if name in lines]
+    OUT.write_text("\n".join(rows) + "\n")
+    print(OUT.read_text())
 
 
 if __name__ == "__main__":

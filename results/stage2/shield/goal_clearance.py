@@ -126,11 +126,17 @@ def blocked_success(path: str) -> np.ndarray:
     return np.asarray(blocked_row(path)["task_success"], bool)
 
 
-def main() -> None:
-    best = np.asarray(goal_clearances())
+def strata(best: np.ndarray) -> tuple[list[np.ndarray], str]:
+    """Per stratum of `STRATA`, which tasks (by their best clearance `best`) lie in it, and the
+    table's header cells naming each with its count of tasks."""
     masks = [(low <= best) & (best < high) for low, high, _ in STRATA]
     counts = zip(STRATA, masks, strict=True)
-    header = " | ".join(f"{name} ({int(m.sum())} tasks)" for (_, _, name), m in counts)
+    return masks, " | ".join(f"{name} ({int(m.sum())} tasks)" for (_, _, name), m in counts)
+
+
+def main() -> None:
+    best = np.asarray(goal_clearances())
+    masks, header = strata(best)
     lines = [
         "Blocked test tasks by the best true clearance of the goal's IK solutions "
         "(`goal_clearance.py`); success per stratum, means over the listed seeds.",
