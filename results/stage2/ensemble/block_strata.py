@@ -24,7 +24,7 @@ from clamgen.envs import ReachEnv
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "shield"))
-from goal_clearance import solution_clearances, strata  # noqa: E402 (the sibling script's)
+from goal_clearance import best_clearance, strata  # noqa: E402 (the sibling script's)
 
 LINES = HERE / "ensemble_350000.jsonl"
 CACHE = HERE / "block_strata_350000.json"
@@ -63,10 +63,7 @@ def best_clearances(seeds: list[int]) -> np.ndarray:
         if cached["seeds"] == seeds:
             return np.asarray(cached["best_clearance_m"])
     env = ReachEnv(num_obstacles=2, task_family="blocked")
-    best = []
-    for seed in seeds:
-        values = solution_clearances(env, seed)
-        best.append(float(values.max()) if len(values) else float("-inf"))
+    best = [best_clearance(env, seed) for seed in seeds]
     CACHE.write_text(json.dumps({"seeds": seeds, "best_clearance_m": best}, indent=1))
     return np.asarray(best)
 

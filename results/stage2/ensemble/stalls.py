@@ -18,10 +18,10 @@ from __future__ import annotations
 import argparse
 import json
 
-import mujoco
 import numpy as np
 from block_strata import CACHE, blocked_lines  # (this directory: the script's own)
 from ensemble import load
+from goal_clearance import arm_clearance  # (../shield/, put on the path by block_strata)
 
 from clamgen.envs import ReachEnv
 from clamgen.experiments.evaluate import run_episode
@@ -29,19 +29,6 @@ from clamgen.experiments.evaluate import run_episode
 ROOMY_M = 0.01  # goals whose best IK solution keeps this clearance (block_strata's last stratum)
 TAIL_STEPS = 50  # how much the tip moved over an episode's last steps
 NEAR_M = 0.01  # an arm this close to an obstacle at the end is pressed against it
-
-
-def arm_clearance(env: ReachEnv) -> float:
-    """The arm's smallest distance (m, capped at 0.1) to any obstacle in its current pose."""
-    scene = env.unwrapped.scene
-    model, data = scene.model, scene.data
-    obstacles = [g for g in scene.obstacle_geoms.ravel() if model.geom_conaffinity[g]]
-    fromto = np.zeros(6)
-    return min(
-        mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
-        for a in scene.robot_geoms
-        for o in obstacles
-    )
 
 
 def main() -> None:
@@ -81,7 +68,7 @@ def main() -> None:
                 continue
             d = np.asarray(distances)
             moved = abs(d[-1] - d[-TAIL_STEPS])
-            rows.append((seed, d[0], d.min(), d[-1], moved, arm_clearance(env)))
+            rows.append((seed, d[0], d.min(), d[-1], moved, arm_clearance(env.unwrapped.scene)))
             print(
                 f"{name} {seed}: start {d[0]:.3f} m, closest {d.min():.3f}, end {d[-1]:.3f}, "
                 f"last {TAIL_STEPS} steps moved {moved:.3f}, arm clearance {rows[-1][5]:.3f}"

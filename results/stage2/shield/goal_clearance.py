@@ -75,27 +75,36 @@ BASELINES = {
 }
 
 
-def solution_clearances(env: ReachEnv, seed: int) -> np.ndarray:
-    """The true clearance (m, capped at 0.1) from the obstacles of each IK solution at the
-    target of `env`'s task `seed` (MuJoCo's geom distances, every arm geom against every
-    obstacle)."""
-    env.reset(seed=int(seed))
-    scene = env.unwrapped.scene
+def arm_clearance(scene) -> float:
+    """The arm's true clearance (m, capped at 0.1) from the obstacles in its current pose
+    (MuJoCo's geom distances, every arm geom against every obstacle)."""
     model, data = scene.model, scene.data
     obstacles = [g for g in scene.obstacle_geoms.ravel() if model.geom_conaffinity[g]]
     fromto = np.zeros(6)
+    return min(
+        mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
+        for a in scene.robot_geoms
+        for o in obstacles
+    )
+
+
+def solution_clearances(env: ReachEnv, seed: int) -> np.ndarray:
+    """`arm_clearance` of each IK solution at the target of `env`'s task `seed`."""
+    env.reset(seed=int(seed))
+    scene = env.unwrapped.scene
     values = []
     for q in solve_tip_position(scene.target_position, reference_joints=ur5.HOME_JOINTS):
-        data.qpos[:] = q
-        mujoco.mj_kinematics(model, data)
-        values.append(
-            min(
-                mujoco.mj_geomDistance(model, data, int(a), int(o), 0.1, fromto)
-                for a in scene.robot_geoms
-                for o in obstacles
-            )
-        )
+        scene.data.qpos[:] = q
+        mujoco.mj_kinematics(scene.model, scene.data)
+        values.append(arm_clearance(scene))
     return np.asarray(values)
+
+
+def best_clearance(env: ReachEnv, seed: int) -> float:
+    """The best true clearance (m) of the IK solutions at the target of `env`'s task `seed`
+    (-inf where it has none)."""
+    values = solution_clearances(env, seed)
+    return float(values.max()) if len(values) else float("-inf")
 
 
 def goal_clearances() -> list[float]:
@@ -103,10 +112,7 @@ def goal_clearances() -> list[float]:
     if CACHE.exists():
         return json.loads(CACHE.read_text())["best_clearance_m"]
     env = ReachEnv(num_obstacles=2, task_family="blocked")
-    best = []
-    for seed in TEST_SEEDS.seeds(NUM_TASKS):
-        values = solution_clearances(env, int(seed))
-        best.append(float(values.max()) if len(values) else float("-inf"))
+    best = [best_clearance(env, int(seed)) for seed in TEST_SEEDS.seeds(NUM_TASKS)]
     first = int(TEST_SEEDS.start)
     CACHE.write_text(json.dumps({"first_seed": first, "best_clearance_m": best}, indent=1))
     return best
