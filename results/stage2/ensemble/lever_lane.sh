@@ -37,19 +37,16 @@ for NAME in "$@"; do
       ARGS="--updates 48000"; SRC=runs/reseed/d3-least-seed1
       POOL="runs/reseed/d3-least-seed2 runs/reseed/d3-least-seed3 runs/reseed/d3-least-seed4"
       CACHE=runs/pool-cache/d3-least4 ;;
-    prev4-s[0-9]*) SEED=${NAME#prev4-s}; OUT=runs/offline/d3-prev4-48k-s$SEED
-      ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
-      POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
-      CACHE=runs/pool-cache/d3-prev4 ;;
-    tanh-prev4-s[0-9]*) SEED=${NAME#tanh-prev4-s}; OUT=runs/offline/d3-tanh-prev4-48k-s$SEED
-      ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
-      POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
-      CACHE=runs/pool-cache/d3-prev4; SETS="action_loss_weight=1 pre_squash_loss_weight=0.05" ;;
-    l1-prev4-s[0-9]*) SEED=${NAME#l1-prev4-s}; OUT=runs/offline/d3-l1-prev4-48k-s$SEED
+    prev4-s[0-9]* | tanh-prev4-s[0-9]* | l1-prev4-s[0-9]*)
+      KIND=${NAME%prev4-s*}; SEED=${NAME##*-s}; OUT=runs/offline/d3-${KIND}prev4-48k-s$SEED
       ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
       POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
       CACHE=runs/pool-cache/d3-prev4
-      SETS="action_loss_weight=1 pre_squash_loss_weight=0.05 action_loss_kind=absolute" ;;
+      TANH="action_loss_weight=1 pre_squash_loss_weight=0.05"
+      case "$KIND" in
+        tanh-) SETS=$TANH ;;
+        l1-) SETS="$TANH action_loss_kind=absolute" ;;
+      esac ;;
     *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS, l1-prev4-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
