@@ -41,7 +41,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 import torch
@@ -64,7 +64,8 @@ from clamgen.experiments.train import POLICY_NAME, MetricLogger, make_env
 # lookahead teacher's labels and rollouts use the same bound.
 TARGET_CLIP = lookahead.PRE_SQUASH_CLIP
 # What `DistillSettings.action_loss_kind` may be.
-ACTION_LOSS_KINDS = ("squared", "absolute")
+ActionLossKind = Literal["squared", "absolute"]
+ACTION_LOSS_KINDS = get_args(ActionLossKind)
 # Env reset seeds of distillation episodes: training seeds far from the RL runs' (loop seed *
 # 1000 + env index) and from results/stage2/tune/distill.py's.
 DISTILL_SEED_BASE = 800_000_000
@@ -164,7 +165,7 @@ class DistillSettings:
     move the arm; a small `pre_squash_loss_weight` beside it keeps a gradient on a saturated
     mean of the wrong sign. (Measured in session 52 with weights 1 and 0.05: no gain for the
     3-view students, `results/stage2/distill/README.md`, "The loss after the tanh".)"""
-    action_loss_kind: Literal["squared", "absolute"] = "squared"
+    action_loss_kind: ActionLossKind = "squared"
     """The error after the tanh that `action_loss_weight` weighs: "squared" (its mean square:
     where labels at nearby states disagree, their mean) or "absolute" (its mean absolute
     value: per component, their median, which keeps the side most labels take where they
