@@ -3,7 +3,15 @@
 import numpy as np
 import torch
 
-from clamgen.agents.geometry import LONG_LINK_FRACTIONS, NUM_ARM_KEYPOINTS, arm_keypoints
+from clamgen.agents.geometry import (
+    GOAL_DIRECTION_MIN_M,
+    GOAL_OFFSET_SCALE_M,
+    LONG_LINK_FRACTIONS,
+    NUM_ARM_KEYPOINTS,
+    arm_keypoints,
+    goal_offset_features,
+)
+from clamgen.envs.reach_env import ReachEnv
 from clamgen.robot.kinematics import forward_kinematics
 
 
@@ -18,3 +26,28 @@ def test_keypoints_are_the_frame_origins_tip_and_points_along_the_long_links():
         for j, fraction in enumerate(LONG_LINK_FRACTIONS):
             expected = origins[:, a] + fraction * (origins[:, b] - origins[:, a])
             np.testing.assert_allclose(points[:, 7 + link * n + j], expected, atol=1e-5)
+
+
+def test_goal_offset_features_are_the_envs_tip_to_goal_offset_and_its_direction():
+    env = ReachEnv(num_obstacles=2, task_family="blocked")
+    joints, goals, tips = [], [], []
+    for seed in range(6):
+        obs, _ = env.reset(seed=seed)
+        for _ in range(3):
+            joints.append(obs["observation"])
+            goals.append(obs["desired_goal"])
+            tips.append(obs["achieved_goal"])
+            obs = env.step(env.action_space.sample())[0]
+    features = goal_offset_features(
+        torch.as_tensor(np.array(joints)), torch.as_tensor(np.array(goals))
+    )
+    features = features.numpy()
+    offset = np.array(goals) - np.array(tips)
+    np.testing.assert_allclose(features[:, :3] * GOAL_OFFSET_SCALE_M, offset, atol=1e-4)
+    distance = np.linalg.norm(offset, axis=1, keepdims=True)
+    expected = offset / np.maximum(distance, GOAL_DIRECTION_MIN_M)
+    np.testing.assert_allclose(features[:, 3:], expected, atol=1e-3)
+    # At the goal the direction fades: a tip 1 cm away reads half a unit vector.
+    at_goal = torch.as_tensor((tips[0] + np.float32([0.01, 0.0, 0.0]))[None])
+    near = goal_offset_features(torch.as_tensor(np.array(joints[:1])), at_goal).numpy()
+    np.testing.assert_allclose(near[0, 3:], [0.5, 0.0, 0.0], atol=2e-3)

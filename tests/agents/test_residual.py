@@ -251,6 +251,23 @@ def test_arm_keypoints_reach_the_privileged_encoding():
         config(arm_keypoints=True)
 
 
+def test_goal_offset_gives_the_networks_the_tips_offset_to_the_goal():
+    agent = ResidualAgent(config(goal_offset=True), base_agent())
+    plain = ResidualAgent(config(), base_agent())
+    data = batch()
+    obs = data["obs"]
+    state = agent._state(obs)
+    assert state.shape == (8, 9 + 6)
+    # The first nine are the paper's normalised joints and goal; the rest depend on both.
+    torch.testing.assert_close(state[:, :9], plain._state(obs))
+    nearer = {**obs, "desired_goal": obs["desired_goal"] + 0.01}
+    assert not torch.allclose(agent._state(nearer)[:, 9:], state[:, 9:])
+    assert np.isfinite(agent.update(data)["train/critic_loss"])
+    assert agent.act(obs, True).shape == (8, 6)
+    with pytest.raises(ValueError, match="goal_offset"):
+        config(goal_offset=True, use_low_dim=False, residual=False)
+
+
 def test_an_n_step_batch_bootstraps_with_its_own_discount():
     data = batch(obstacles=True)
     size = len(data["action"])

@@ -134,6 +134,12 @@ def main() -> None:
         "run's)",
     )
     parser.add_argument(
+        "--goal-offset",
+        action="store_true",
+        help="the student also reads the tip's offset to the goal (agent.goal_offset; beyond "
+        "the paper)",
+    )
+    parser.add_argument(
         "--encoder-channels",
         type=int,
         default=None,
@@ -242,6 +248,8 @@ def main() -> None:
         agent_changes["actor_components"] = args.actor_components
     if args.view_dropout is not None:
         agent_changes["view_dropout"] = args.view_dropout
+    if args.goal_offset:
+        agent_changes["goal_offset"] = True
     env = student.env
     if args.encoder_channels:
         agent_changes["encoder"] = dataclasses.replace(
@@ -411,6 +419,7 @@ def main() -> None:
         "encoder_channels": student.agent.encoder.num_channels,
         "view_dropout": student.agent.view_dropout,
         "actor_components": student.agent.actor_components,
+        "goal_offset": student.agent.goal_offset,
         "loss": loss,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}

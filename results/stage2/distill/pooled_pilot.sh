@@ -10,6 +10,8 @@
 # settings, the output then runs/offline/priv-KIND-TAG-pool3-sSEED, e.g.
 #   TAG=tanh SETS="action_loss_weight=1 pre_squash_loss_weight=0.05" \
 #       results/stage2/distill/pooled_pilot.sh fixed50 7
+# ARGS holds other offline.py options of the lever (session 53), e.g.
+#   TAG=goal ARGS=--goal-offset results/stage2/distill/pooled_pilot.sh fixed50 7 8
 # One block, read whole before it runs: the script can be edited while a lane runs it.
 {
 set -e
@@ -22,7 +24,7 @@ for S in "$@"; do
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py runs/distill/priv-$KIND-s1 $OUT \
     --pool runs/distill/priv-$KIND-s2 runs/distill/priv-$KIND-s3 --updates 48000 \
-    --set seed=$S $SETS --torch-threads 1
+    --set seed=$S $SETS $ARGS --torch-threads 1
 done
 exit
 }

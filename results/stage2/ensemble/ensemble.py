@@ -226,6 +226,11 @@ STUDENTS = {
             # Session 52: prev4's regression with the loss after the tanh (`lever_lane.sh
             # tanh-prev4-sS`; distill README, "The loss after the tanh").
             ("3v-tanh-prev4-s7", "d3-tanh-prev4-48k-s7"),
+            # Session 53: prev4's regression, the student also reading the tip's offset to the
+            # goal (`lever_lane.sh goal-prev4-sS`; distill README, "The tip's offset to the
+            # goal").
+            ("3v-goal-prev4-s7", "d3-goal-prev4-48k-s7"),
+            ("3v-goal-prev4-s8", "d3-goal-prev4-48k-s8"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -328,7 +333,10 @@ COMPARED = {
     "3v-prev4-s7": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     "3v-prev4-s8": ("3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
     **{name: (student,) for name, (student, _) in NEAR_BASE.items()},
-    "3v-tanh-prev4-s7": ("3v-prev4-s7", "3v-prev4-s8", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9"),
+    **{
+        name: ("3v-prev4-s7", "3v-prev4-s8", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9")
+        for name in ("3v-tanh-prev4-s7", "3v-goal-prev4-s7", "3v-goal-prev4-s8")
+    },
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
 

@@ -4,6 +4,7 @@ The privileged residual sees the obstacles' true poses, but whether a motion col
 on where the links are, which joint angles give only through forward kinematics. Handing the
 network points along the arm (and, in `ObstacleEncoder`, each point's offset to each obstacle)
 saves it from learning the kinematics first. The points are a function of the joints alone.
+`goal_offset_features` does the same for the goal: the tip's offset to it, for any policy.
 """
 
 from __future__ import annotations
@@ -21,6 +22,15 @@ LONG_LINK_FRACTIONS = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875)
 # DH frame indices (1-based origins) that bound the two long links.
 _LONG_LINKS = ((1, 2), (2, 3))
 NUM_ARM_KEYPOINTS = NUM_JOINTS + 1 + len(_LONG_LINKS) * len(LONG_LINK_FRACTIONS)
+# Index of the suction tip among `arm_keypoints` (after the six frame origins).
+TIP_KEYPOINT = NUM_JOINTS
+# `goal_offset_features`: the offset is given in units of GOAL_OFFSET_SCALE_M (about the goal
+# box's half width, so the values are of order 1 like the normalised joints), and its direction
+# as offset / max(distance, GOAL_DIRECTION_MIN_M): a unit vector until the tip is within the
+# success distance (2 cm), shrinking to zero inside it.
+GOAL_OFFSET_SCALE_M = 0.1
+GOAL_DIRECTION_MIN_M = 0.02
+NUM_GOAL_OFFSET_FEATURES = 6
 
 
 def _dh(theta: torch.Tensor, d: float, a: float, alpha: float) -> torch.Tensor:
@@ -58,3 +68,18 @@ def arm_keypoints(joints: torch.Tensor) -> torch.Tensor:
         for a, b in _LONG_LINKS
     ]
     return torch.cat([torch.stack(origins, 1), *along], 1)
+
+
+def goal_offset_features(joints: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    """The tip's offset to the goal, (B, `NUM_GOAL_OFFSET_FEATURES`): the offset goal - tip
+    (world frame) over `GOAL_OFFSET_SCALE_M`, then its direction (offset over the larger of its
+    length and `GOAL_DIRECTION_MIN_M`).
+
+    joints: (B, 6) radians; goal: (B, 3) metres. The tip comes from the joints by forward
+    kinematics (the env's `achieved_goal`, to float precision), so a policy reading these knows
+    where the goal lies from its tip without learning the kinematics: near the goal, a few
+    centimetres are a small difference of large normalised inputs otherwise.
+    """
+    offset = goal.to(torch.float32) - arm_keypoints(joints)[:, TIP_KEYPOINT]
+    distance = offset.norm(dim=-1, keepdim=True).clamp(min=GOAL_DIRECTION_MIN_M)
+    return torch.cat([offset / GOAL_OFFSET_SCALE_M, offset / distance], -1)

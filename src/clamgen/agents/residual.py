@@ -56,7 +56,12 @@ from clamgen.agents.encoders import (
     MultiViewEncoder,
     view_dropout_mask,
 )
-from clamgen.agents.geometry import NUM_ARM_KEYPOINTS, arm_keypoints
+from clamgen.agents.geometry import (
+    NUM_ARM_KEYPOINTS,
+    NUM_GOAL_OFFSET_FEATURES,
+    arm_keypoints,
+    goal_offset_features,
+)
 from clamgen.agents.networks import (
     Actor,
     EnsembleCritic,
@@ -159,6 +164,12 @@ class ResidualConfig:
     that a policy can keep to the way round an obstacle it has begun, where a teacher's labels
     hold to a plan. The base and the state-regression target read joints and goal only.
     False: the paper."""
+    goal_offset: bool = False
+    """Beyond the paper: the actor and critic also read the tip's offset to the goal and its
+    direction (`geometry.goal_offset_features`, forward kinematics of the joints: nothing the
+    observation lacks), so that the last centimetres to the goal are not a small difference
+    of large inputs. The base and the state-regression target read joints and goal only.
+    False: the paper (joints and goal)."""
     target_encoder: Literal["target", "online"] = "target"
     """Visual features the target critic reads for s': "target", its own Polyak-averaged copy
     of the encoder (CURL, SAC-AE, the paper); "online", the online encoder's no-grad features,
@@ -214,6 +225,8 @@ class ResidualConfig:
             raise ValueError(f"agent.actor_components must be an integer >= 1, got {value!r}")
         if self.arm_keypoints and self.obs_source != "obstacles":
             raise ValueError("agent.arm_keypoints needs agent.obs_source='obstacles'")
+        if self.goal_offset and not self.use_low_dim:
+            raise ValueError("agent.goal_offset reads joints and goal: it needs use_low_dim")
         if not 0.0 <= self.view_dropout < 1.0:  # NaN fails too
             raise ValueError(f"agent.view_dropout must be in [0, 1), got {self.view_dropout}")
         if self.target_encoder not in ("target", "online"):
@@ -452,8 +465,9 @@ class ResidualAgent:
         self.base = base
         self.action_dim = action_dim = base.action_dim
         # The networks' low-dim input: normalised joints + goal (the base's), then the previous
-        # action when the config asks for it.
+        # action and the tip's offset to the goal when the config asks for them.
         low_dim = base.obs_dim + (action_dim if config.previous_action else 0)
+        low_dim += NUM_GOAL_OFFSET_FEATURES if config.goal_offset else 0
         enc = config.encoder
         images = config.obs_source == "images"
         with torch.random.fork_rng(devices=[]):
@@ -593,12 +607,17 @@ class ResidualAgent:
     # ------------------------------------------------------------------ inputs
     def _state(self, obs: Mapping[str, Any]) -> torch.Tensor:
         """The networks' low-dim input: the true normalised joints + goal (B, 9), then the
-        previous action (B, 6) when `config.previous_action`."""
-        state = self.normalizer(torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device))
-        if not self.config.previous_action:
-            return state
-        previous = torch.as_tensor(np.asarray(obs["previous_action"]), device=self.device)
-        return torch.cat([state, previous.float()], -1)
+        previous action (B, 6) when `config.previous_action`, then the tip's offset to the goal
+        (B, 6) when `config.goal_offset`."""
+        raw = torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device)
+        parts = [self.normalizer(raw)]
+        if self.config.previous_action:
+            previous = torch.as_tensor(np.asarray(obs["previous_action"]), device=self.device)
+            parts.append(previous.float())
+        if self.config.goal_offset:
+            joints = raw[..., :NUM_JOINTS]
+            parts.append(goal_offset_features(joints, raw[..., NUM_JOINTS : NUM_JOINTS + 3]))
+        return parts[0] if len(parts) == 1 else torch.cat(parts, -1)
 
     def _true_state(self, low_dim: torch.Tensor) -> torch.Tensor:
         """Normalised joints + goal of a low-dim input: what the base and the state-regression
