@@ -609,14 +609,15 @@ class ResidualAgent:
         """The networks' low-dim input: the true normalised joints + goal (B, 9), then the
         previous action (B, 6) when `config.previous_action`, then the tip's offset to the goal
         (B, 6) when `config.goal_offset`."""
-        raw = torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device)
-        parts = [self.normalizer(raw)]
+        parts = [
+            self.normalizer(torch.as_tensor(flatten_obs(obs, LOW_DIM_KEYS), device=self.device))
+        ]
         if self.config.previous_action:
             previous = torch.as_tensor(np.asarray(obs["previous_action"]), device=self.device)
             parts.append(previous.float())
         if self.config.goal_offset:
-            joints = raw[..., :NUM_JOINTS]
-            parts.append(goal_offset_features(joints, raw[..., NUM_JOINTS : NUM_JOINTS + 3]))
+            offset = goal_offset_features(obs["observation"], obs["desired_goal"])
+            parts.append(torch.as_tensor(offset, device=self.device))
         return parts[0] if len(parts) == 1 else torch.cat(parts, -1)
 
     def _true_state(self, low_dim: torch.Tensor) -> torch.Tensor:
