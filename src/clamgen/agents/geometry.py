@@ -24,8 +24,6 @@ LONG_LINK_FRACTIONS = (0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875)
 # DH frame indices (1-based origins) that bound the two long links.
 _LONG_LINKS = ((1, 2), (2, 3))
 NUM_ARM_KEYPOINTS = NUM_JOINTS + 1 + len(_LONG_LINKS) * len(LONG_LINK_FRACTIONS)
-# Index of the suction tip among `arm_keypoints` (after the six frame origins).
-TIP_KEYPOINT = NUM_JOINTS
 # `goal_offset_features`: the offset is given in units of GOAL_OFFSET_SCALE_M (about the goal
 # box's half width, so the values are of order 1 like the normalised joints), and its direction
 # as offset / max(distance, GOAL_DIRECTION_MIN_M): a unit vector until the tip is within the
