@@ -268,6 +268,18 @@ def test_goal_offset_gives_the_networks_the_tips_offset_to_the_goal():
         config(goal_offset=True, use_low_dim=False, residual=False)
 
 
+def test_center_train_crops_learn_on_what_acting_sees_and_keep_curls_random_key():
+    obs = batch()["obs"]
+    centre = ResidualAgent(config(train_crops="center"), base_agent())
+    torch.testing.assert_close(centre._visual(obs, train=True), centre._visual(obs, train=False))
+    assert not torch.equal(centre._train_inputs(batch()).key_in(), centre._visual(obs, False))
+    randomly = ResidualAgent(config(), base_agent())
+    assert not torch.equal(randomly._visual(obs, train=True), randomly._visual(obs, train=False))
+    assert np.isfinite(centre.update(batch())["train/curl_loss"])
+    with pytest.raises(ValueError, match="train_crops"):
+        config(train_crops="corner")
+
+
 def test_an_n_step_batch_bootstraps_with_its_own_discount():
     data = batch(obstacles=True)
     size = len(data["action"])

@@ -134,6 +134,12 @@ def main() -> None:
         "run's)",
     )
     parser.add_argument(
+        "--center-crops",
+        action="store_true",
+        help="the regression takes the centre crop of every view, as acting does, instead of "
+        "random crops (agent.train_crops center; beyond the paper)",
+    )
+    parser.add_argument(
         "--goal-offset",
         action="store_true",
         help="the student also reads the tip's offset to the goal (agent.goal_offset; beyond "
@@ -250,6 +256,8 @@ def main() -> None:
         agent_changes["view_dropout"] = args.view_dropout
     if args.goal_offset:
         agent_changes["goal_offset"] = True
+    if args.center_crops:
+        agent_changes["train_crops"] = "center"
     env = student.env
     if args.encoder_channels:
         agent_changes["encoder"] = dataclasses.replace(
@@ -420,6 +428,7 @@ def main() -> None:
         "view_dropout": student.agent.view_dropout,
         "actor_components": student.agent.actor_components,
         "goal_offset": student.agent.goal_offset,
+        "train_crops": student.agent.train_crops,
         "loss": loss,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}

@@ -231,6 +231,10 @@ STUDENTS = {
             # goal").
             ("3v-goal-prev4-s7", "d3-goal-prev4-48k-s7"),
             ("3v-goal-prev4-s8", "d3-goal-prev4-48k-s8"),
+            # ... and the same regression on centre crops (`lever_lane.sh center-prev4-sS`;
+            # README, "Centre crops in the regression").
+            ("3v-center-prev4-s7", "d3-center-prev4-48k-s7"),
+            ("3v-center-prev4-s8", "d3-center-prev4-48k-s8"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -335,7 +339,13 @@ COMPARED = {
     **{name: (student,) for name, (student, _) in NEAR_BASE.items()},
     **{
         name: ("3v-prev4-s7", "3v-prev4-s8", "3v-reg-s7", "3v-reg-s8", "3v-reg-s9")
-        for name in ("3v-tanh-prev4-s7", "3v-goal-prev4-s7", "3v-goal-prev4-s8")
+        for name in (
+            "3v-tanh-prev4-s7",
+            "3v-goal-prev4-s7",
+            "3v-goal-prev4-s8",
+            "3v-center-prev4-s7",
+            "3v-center-prev4-s8",
+        )
     },
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""

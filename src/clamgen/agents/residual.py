@@ -100,6 +100,12 @@ class ResidualConfig:
     crop_padding: int = 4
     """Stored images are `encoder.image_size + 2 * crop_padding` pixels; training crops them at
     random offsets (CURL's augmentation), acting takes the centre crop."""
+    train_crops: Literal["random", "center"] = "random"
+    """How the policy's updates crop the stored images: "random", each view of each sample at
+    its own random offset (CURL's augmentation, the paper); "center", the centre crop that
+    acting takes (beyond the paper: no shift between what is learnt and what is acted on, and
+    the views' geometry kept consistent with each other and with joints and goal). The
+    contrastive losses' query and key crops stay random either way."""
     residual: bool = True
     """Learn a residual on the frozen base (CLAMGen); False: the "no residual" ablation."""
     use_low_dim: bool = True
@@ -218,6 +224,10 @@ class ResidualConfig:
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
                 raise ValueError(f"agent.{name} must be an integer >= {low}, got {value!r}")
+        if self.train_crops not in ("random", "center"):
+            raise ValueError(
+                f"agent.train_crops must be 'random' or 'center', got {self.train_crops!r}"
+            )
         if self.obs_source not in ("images", "obstacles"):
             raise ValueError(f"obs_source must be 'images' or 'obstacles', got {self.obs_source!r}")
         value = self.actor_components
@@ -628,8 +638,11 @@ class ResidualAgent:
     def _call_base_q(self, base_critic, low_dim: torch.Tensor, action: torch.Tensor):
         return base_critic(self._true_state(low_dim), action)
 
-    def _visual(self, obs: Mapping[str, Any], train: bool) -> torch.Tensor:
-        """Images cropped to the encoder's size (random offsets when training), or poses."""
+    def _visual(
+        self, obs: Mapping[str, Any], train: bool, crops: str | None = None
+    ) -> torch.Tensor:
+        """Images cropped to the encoder's size (when training, as `config.train_crops` or
+        `crops` says; acting, the centre crop), or poses."""
         if self.config.obs_source != "images":
             poses = torch.as_tensor(np.asarray(obs["obstacles"]), device=self.device).float()
             if not self.config.arm_keypoints:
@@ -638,7 +651,7 @@ class ResidualAgent:
             return torch.cat([poses.flatten(1), joints], 1)
         value = torch.as_tensor(np.asarray(obs["images"]), device=self.device)
         crop = self.config.encoder.image_size
-        if train:
+        if train and (crops or self.config.train_crops) == "random":
             return random_crop(value, crop, self._generator)
         return center_crop(value, crop)
 
@@ -660,8 +673,9 @@ class ResidualAgent:
             next_state=self._state(batch["next_obs"]),
             visual_in=self._visual(batch["obs"], train=True),
             next_visual_in=self._visual(batch["next_obs"], train=True),
-            # A second, independent random crop of the same images: CURL's positive key.
-            key_in=lambda: self._visual(batch["obs"], train=True),
+            # A second, independent random crop of the same images: CURL's positive key
+            # (random whatever `train_crops` says: two centre crops would be the same image).
+            key_in=lambda: self._visual(batch["obs"], train=True, crops="random"),
             action=tensor("action"),
             reward=tensor("reward"),
             done=tensor("done"),
