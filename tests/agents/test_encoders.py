@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clamgen.agents.augment import center_crop, random_crop
+from clamgen.agents.augment import center_crop, edge_pad, random_crop
 from clamgen.agents.encoders import (
     EncoderConfig,
     LowDimEncoder,
@@ -270,6 +270,17 @@ def test_random_crop_differs_per_sample_and_per_view() -> None:
     same = random_crop(images, 24, torch.Generator().manual_seed(0), same_offset_across_views=True)
     assert all(torch.equal(same[b, 0], same[b, v]) for b in range(16) for v in range(3))
     assert len(torch.unique(same[:, 0].reshape(16, -1), dim=0)) > 8
+
+
+def test_edge_pad_repeats_the_border_pixels_as_numpy_edge_mode() -> None:
+    images = random_images(dataclasses.replace(TINY, image_size=20), 2)
+    padded = edge_pad(images, 3)
+    assert padded.shape == (2, 3, 4, 26, 26) and padded.dtype == torch.uint8
+    expected = np.pad(images.numpy(), [(0, 0)] * 3 + [(3, 3), (3, 3)], mode="edge")
+    np.testing.assert_array_equal(padded.numpy(), expected)
+    assert edge_pad(images, 0) is images
+    with pytest.raises(ValueError, match="pad"):
+        edge_pad(images, -1)
 
 
 def test_center_crop_is_deterministic_and_centred() -> None:

@@ -280,6 +280,38 @@ def test_center_train_crops_learn_on_what_acting_sees_and_keep_curls_random_key(
         config(train_crops="corner")
 
 
+def test_train_shift_padding_widens_the_random_crops_by_repeated_edges():
+    obs = batch()["obs"]
+    agent = ResidualAgent(config(train_shift_padding=3), base_agent())
+    crops = agent._visual(obs, train=True)
+    assert crops.shape == (8, VIEWS, 4, CROP, CROP)
+    # Every crop is a window of the edge-padded images, the shifts up to PAD + 3 either way.
+    padded = np.pad(obs["images"], [(0, 0)] * 3 + [(3, 3), (3, 3)], mode="edge")
+    side = CROP + 2 * (PAD + 3)
+    offsets = []
+    for b in range(8):
+        for v in range(VIEWS):
+            found = [
+                (t, u)
+                for t in range(side - CROP + 1)
+                for u in range(side - CROP + 1)
+                if np.array_equal(crops[b, v].numpy(), padded[b, v, :, t : t + CROP, u : u + CROP])
+            ]
+            assert found
+            offsets += found
+    assert any(t < 3 or t > 2 * PAD + 3 or u < 3 or u > 2 * PAD + 3 for t, u in offsets)
+    torch.testing.assert_close(agent._visual(obs, train=False), randomless(obs))
+    with pytest.raises(ValueError, match="train_shift_padding"):
+        config(train_shift_padding=2, train_crops="center")
+    with pytest.raises(ValueError, match="train_shift_padding"):
+        config(train_shift_padding=-1)
+
+
+def randomless(obs) -> torch.Tensor:
+    """The centre crops acting takes, as the default agent takes them."""
+    return ResidualAgent(config(), base_agent())._visual(obs, train=False)
+
+
 def test_an_n_step_batch_bootstraps_with_its_own_discount():
     data = batch(obstacles=True)
     size = len(data["action"])

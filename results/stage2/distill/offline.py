@@ -140,6 +140,14 @@ def main() -> None:
         "random crops (agent.train_crops center; beyond the paper)",
     )
     parser.add_argument(
+        "--shift-padding",
+        type=int,
+        default=None,
+        metavar="K",
+        help="widen the regression's random crops by K pixels of repeated edge on every side "
+        "(agent.train_shift_padding; DrQ's random shift; beyond the paper)",
+    )
+    parser.add_argument(
         "--goal-offset",
         action="store_true",
         help="the student also reads the tip's offset to the goal (agent.goal_offset; beyond "
@@ -258,6 +266,8 @@ def main() -> None:
         agent_changes["goal_offset"] = True
     if args.center_crops:
         agent_changes["train_crops"] = "center"
+    if args.shift_padding is not None:
+        agent_changes["train_shift_padding"] = args.shift_padding
     env = student.env
     if args.encoder_channels:
         agent_changes["encoder"] = dataclasses.replace(
@@ -429,6 +439,7 @@ def main() -> None:
         "actor_components": student.agent.actor_components,
         "goal_offset": student.agent.goal_offset,
         "train_crops": student.agent.train_crops,
+        "train_shift_padding": student.agent.train_shift_padding,
         "loss": loss,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}

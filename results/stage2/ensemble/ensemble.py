@@ -235,6 +235,10 @@ STUDENTS = {
             # README, "Centre crops in the regression").
             ("3v-center-prev4-s7", "d3-center-prev4-48k-s7"),
             ("3v-center-prev4-s8", "d3-center-prev4-48k-s8"),
+            # ... and on random crops shifted up to 8 pixels (`lever_lane.sh shift8-prev4-sS`;
+            # README, "Wider random shifts in the regression").
+            ("3v-shift8-prev4-s7", "d3-shift8-prev4-48k-s7"),
+            ("3v-shift8-prev4-s8", "d3-shift8-prev4-48k-s8"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -345,6 +349,8 @@ COMPARED = {
             "3v-goal-prev4-s8",
             "3v-center-prev4-s7",
             "3v-center-prev4-s8",
+            "3v-shift8-prev4-s7",
+            "3v-shift8-prev4-s8",
         )
     },
 }

@@ -17,7 +17,8 @@
 #         distill README "The loss after the tanh"), l1-prev4-sS (the same with the absolute
 #         error after the tanh), goal-prev4-sS (session 53: prev4's regression, the student
 #         also reading the tip's offset to the goal, --goal-offset), center-prev4-sS (the
-#         same regression on centre crops instead of random ones, --center-crops)
+#         same regression on centre crops instead of random ones, --center-crops),
+#         shift8-prev4-sS (random crops shifted up to 8 pixels instead of 4, --shift-padding 4)
 # One block, read whole before it runs: the script can be edited while a lane runs it.
 {
 set -e
@@ -39,7 +40,8 @@ for NAME in "$@"; do
       ARGS="--updates 48000"; SRC=runs/reseed/d3-least-seed1
       POOL="runs/reseed/d3-least-seed2 runs/reseed/d3-least-seed3 runs/reseed/d3-least-seed4"
       CACHE=runs/pool-cache/d3-least4 ;;
-    prev4-s[0-9]* | tanh-prev4-s[0-9]* | l1-prev4-s[0-9]* | goal-prev4-s[0-9]* | center-prev4-s[0-9]*)
+    prev4-s[0-9]* | tanh-prev4-s[0-9]* | l1-prev4-s[0-9]* | goal-prev4-s[0-9]* | center-prev4-s[0-9]* | \
+    shift8-prev4-s[0-9]*)
       KIND=${NAME%prev4-s*}; SEED=${NAME##*-s}; OUT=runs/offline/d3-${KIND}prev4-48k-s$SEED
       ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
       POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
@@ -50,8 +52,9 @@ for NAME in "$@"; do
         l1-) SETS="$TANH action_loss_kind=absolute" ;;
         goal-) ARGS="$ARGS --goal-offset" ;;
         center-) ARGS="$ARGS --center-crops" ;;
+        shift8-) ARGS="$ARGS --shift-padding 4" ;;
       esac ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS, l1-prev4-sS, goal-prev4-sS, center-prev4-sS)" >&2; exit 2 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS, l1-prev4-sS, goal-prev4-sS, center-prev4-sS, shift8-prev4-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \

@@ -4,13 +4,15 @@ CURL (Srinivas et al., 2020) renders larger frames than the encoder sees (100 px
 crops each sample at its own random offset; the query and the key of the contrastive loss are two
 such crops of one observation (paper, "Learned 3D fusion for Obstacle-Avoidance"). At evaluation
 the policy sees the centre crop. Both work on uint8 (or float) tensors on any device.
+`edge_pad` widens the shifts beyond the rendered margin, as DrQ's random shift does (its frames
+padded by repeating their edge pixels before the crop).
 """
 
 from __future__ import annotations
 
 import torch
 
-__all__ = ["center_crop", "random_crop"]
+__all__ = ["center_crop", "edge_pad", "random_crop"]
 
 
 def _check_crop(images: torch.Tensor, crop_size: int) -> tuple[int, int]:
@@ -80,3 +82,17 @@ def center_crop(images: torch.Tensor, crop_size: int) -> torch.Tensor:
     height, width = _check_crop(images, crop_size)
     top, left = (height - crop_size) // 2, (width - crop_size) // 2
     return images[..., top : top + crop_size, left : left + crop_size]
+
+
+def edge_pad(images: torch.Tensor, pad: int) -> torch.Tensor:
+    """(..., C, H, W) images padded by `pad` pixels on every side, each new pixel a copy of the
+    nearest edge pixel (DrQ's replicate padding): (..., C, H + 2 pad, W + 2 pad), same dtype
+    (uint8 included, which `torch.nn.functional.pad`'s replicate mode does not take)."""
+    if pad < 0:
+        raise ValueError(f"pad must be >= 0, got {pad}")
+    if pad == 0:
+        return images
+    height, width = images.shape[-2:]
+    rows = torch.arange(-pad, height + pad, device=images.device).clamp(0, height - 1)
+    cols = torch.arange(-pad, width + pad, device=images.device).clamp(0, width - 1)
+    return images[..., rows[:, None], cols]

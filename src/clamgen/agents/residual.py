@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from clamgen.agents.augment import center_crop, random_crop
+from clamgen.agents.augment import center_crop, edge_pad, random_crop
 from clamgen.agents.aux_losses import (
     AuxDims,
     AuxInputs,
@@ -106,6 +106,11 @@ class ResidualConfig:
     acting takes (beyond the paper: no shift between what is learnt and what is acted on, and
     the views' geometry kept consistent with each other and with joints and goal). The
     contrastive losses' query and key crops stay random either way."""
+    train_shift_padding: int = 0
+    """With random `train_crops`: the stored images are first widened by this many pixels of
+    repeated edge on every side (DrQ's random shift), so that a training crop shifts by up to
+    `crop_padding + train_shift_padding` pixels either way instead of `crop_padding`. 0: the
+    paper's crops. Beyond the paper."""
     residual: bool = True
     """Learn a residual on the frozen base (CLAMGen); False: the "no residual" ablation."""
     use_low_dim: bool = True
@@ -220,10 +225,13 @@ class ResidualConfig:
             ("warmup_updates", 0),
             ("critic_first_updates", 0),
             ("obstacle_feature_dim", 1),
+            ("train_shift_padding", 0),
         ):
             value = getattr(self, name)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < low:
                 raise ValueError(f"agent.{name} must be an integer >= {low}, got {value!r}")
+        if self.train_shift_padding and self.train_crops != "random":
+            raise ValueError("agent.train_shift_padding widens random crops: train_crops='random'")
         if self.train_crops not in ("random", "center"):
             raise ValueError(
                 f"agent.train_crops must be 'random' or 'center', got {self.train_crops!r}"
@@ -652,6 +660,7 @@ class ResidualAgent:
         value = torch.as_tensor(np.asarray(obs["images"]), device=self.device)
         crop = self.config.encoder.image_size
         if train and (crops or self.config.train_crops) == "random":
+            value = edge_pad(value, self.config.train_shift_padding)
             return random_crop(value, crop, self._generator)
         return center_crop(value, crop)
 
