@@ -4,6 +4,7 @@ import copy
 import dataclasses
 import itertools
 import json
+import math
 
 import numpy as np
 import pytest
@@ -385,6 +386,28 @@ def test_a_finished_run_is_polished_with_a_decaying_learning_rate_and_keeps_the_
         Distiller(
             distill_config(tmp_path, base_policy, teacher, **{**polish, "iterations": 2})
         ).run(False)
+
+
+def test_a_regression_in_chunks_follows_one_cosine_and_restores_the_rate(
+    tmp_path, base_policy, teacher
+):
+    distiller = Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1))
+    distiller.run(False)
+    rates = []
+    step = distiller.optimizer.step
+
+    def record_lr_and_step(*args, **kwargs):
+        rates.append(distiller.optimizer.param_groups[0]["lr"])
+        return step(*args, **kwargs)
+
+    distiller.optimizer.step = record_lr_and_step
+    for first in (0, 4, 8):  # three chunks of one 12-step cosine, as offline.py --cosine runs
+        distiller.regress(4, "offline", show_progress=False, decay_over=(first, 12))
+        assert distiller.optimizer.param_groups[0]["lr"] == pytest.approx(3e-4)
+    expected = [0.5 * 3e-4 * (1 + math.cos(math.pi * k / 12)) for k in range(12)]
+    assert rates == pytest.approx(expected)
+    with pytest.raises(ValueError, match="do not fit"):
+        distiller.regress(4, "offline", show_progress=False, decay_over=(10, 12))
 
 
 def test_a_student_with_candidate_actions_trains_saves_and_acts(tmp_path, base_policy, teacher):

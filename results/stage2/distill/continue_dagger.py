@@ -159,7 +159,9 @@ def main() -> None:
         chunk, stats = distiller.collect_iteration(0.0, iteration, show_progress=True)
         ckpt.save_npz(args.out / "data" / f"iteration{iteration}.npz", chunk)
         distiller.data.add(chunk)
-        loss = distiller.regress(args.updates, iteration, show_progress=True, decay=True)
+        loss = distiller.regress(
+            args.updates, iteration, show_progress=True, decay_over=(0, args.updates)
+        )
         scores = distiller.validate()
         row = {
             "iteration": iteration,

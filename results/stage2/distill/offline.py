@@ -69,11 +69,14 @@ def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
     return out
 
 
-def regress_resumably(distiller: Distiller, updates: int, out: Path, job: dict) -> float | None:
+def regress_resumably(
+    distiller: Distiller, updates: int, out: Path, job: dict, cosine: bool = False
+) -> float | None:
     """`distiller.regress(updates)` in chunks of CHECKPOINT_UPDATES, its state saved to
     `out/PROGRESS_NAME` after each: run again, it goes on after the last saved chunk (the same
-    batches and weights as one uninterrupted run). `job` (JSON values) names the regression; a
-    progress file of another job is refused."""
+    batches and weights as one uninterrupted run). With `cosine` the learning rate falls from
+    the distill `lr` to 0 along one cosine over all `updates`. `job` (JSON values) names the
+    regression; a progress file of another job is refused."""
     path = out / PROGRESS_NAME
     done, loss = 0, None
     if path.exists():
@@ -90,7 +93,8 @@ def regress_resumably(distiller: Distiller, updates: int, out: Path, job: dict) 
     with tqdm(total=updates, initial=done, desc="offline regression", unit="update") as bar:
         while done < updates:
             steps = min(CHECKPOINT_UPDATES, updates - done)
-            loss = distiller.regress(steps, "offline", show_progress=False)
+            decay_over = (done, updates) if cosine else None
+            loss = distiller.regress(steps, "offline", show_progress=False, decay_over=decay_over)
             done += steps
             state = {
                 "format": ckpt.FORMAT,
@@ -226,6 +230,12 @@ def main() -> None:
         default=[],
         metavar="POLICY",
         help="label every state with the mean of these policies' actions instead of the teacher's",
+    )
+    parser.add_argument(
+        "--cosine",
+        action="store_true",
+        help="decay the learning rate from the distill lr to 0 along a cosine over the "
+        "regression (default: constant, as every earlier regression)",
     )
     parser.add_argument(
         "--torch-threads",
@@ -391,8 +401,9 @@ def main() -> None:
         **({"chunk": args.chunk} if args.chunk else {}),
         **({"collision_labels": str(args.collision_labels)} if args.collision_labels else {}),
         **({"bins": args.bins} if args.bins else {}),
+        **({"cosine": True} if args.cosine else {}),
     }
-    loss = regress_resumably(distiller, args.updates, args.out, job)
+    loss = regress_resumably(distiller, args.updates, args.out, job, args.cosine)
     scores = distiller.validate()
     payload = distiller.policy_payload("offline")
     payload["offline"] = {
@@ -440,6 +451,7 @@ def main() -> None:
         "goal_offset": student.agent.goal_offset,
         "train_crops": student.agent.train_crops,
         "train_shift_padding": student.agent.train_shift_padding,
+        "cosine": args.cosine,
         "loss": loss,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}

@@ -239,6 +239,10 @@ STUDENTS = {
             # README, "Wider random shifts in the regression").
             ("3v-shift8-prev4-s7", "d3-shift8-prev4-48k-s7"),
             ("3v-shift8-prev4-s8", "d3-shift8-prev4-48k-s8"),
+            # Session 54: ... with the learning rate decayed to 0 along a cosine over the
+            # regression (`lever_lane.sh cos-prev4-sS`; README, "A decaying learning rate").
+            ("3v-cos-prev4-s7", "d3-cos-prev4-48k-s7"),
+            ("3v-cos-prev4-s8", "d3-cos-prev4-48k-s8"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -351,6 +355,8 @@ COMPARED = {
             "3v-center-prev4-s8",
             "3v-shift8-prev4-s7",
             "3v-shift8-prev4-s8",
+            "3v-cos-prev4-s7",
+            "3v-cos-prev4-s8",
         )
     },
 }

@@ -424,7 +424,7 @@ class Distiller:
         and save the polished student."""
         tic = time.perf_counter()
         steps = self.config.distill.final_updates
-        loss = self.regress(steps, "final", show_progress, decay=True)
+        loss = self.regress(steps, "final", show_progress, decay_over=(0, steps))
         scores = self.validate()
         self.final = {
             "iteration": "final",
@@ -526,19 +526,28 @@ class Distiller:
         return obs
 
     def regress(
-        self, steps: int, iteration: int | str, show_progress: bool, decay: bool = False
+        self,
+        steps: int,
+        iteration: int | str,
+        show_progress: bool,
+        decay_over: tuple[int, int] | None = None,
     ) -> float | None:
-        """`steps` Adam steps of the imitation loss on random batches of all data; with
-        `decay`, the learning rate falls from `lr` to 0 along a cosine over them."""
+        """`steps` Adam steps of the imitation loss on random batches of all data. With
+        `decay_over=(first, total)` the learning rate falls from `lr` to 0 along a cosine over
+        `total` steps, of which these are steps `first`, `first + 1`, ... (`(0, steps)`: over
+        these alone; a long regression run in chunks follows one cosine)."""
         batch_size = self.config.student.agent.batch_size
         lr = self.config.distill.lr
+        if decay_over is not None and not 0 <= decay_over[0] <= decay_over[1] - steps:
+            raise ValueError(f"decay_over {decay_over}: {steps} steps do not fit in it")
         loss_value = None
         for step in tqdm(
             range(steps), desc=f"iteration {iteration} regression", disable=not show_progress
         ):
-            if decay:
+            if decay_over is not None:
+                first, total = decay_over
                 for group in self.optimizer.param_groups:
-                    group["lr"] = 0.5 * lr * (1 + np.cos(np.pi * step / steps))
+                    group["lr"] = 0.5 * lr * (1 + np.cos(np.pi * (first + step) / total))
             index = self.batch_index(batch_size)
             obs, labels = self.data.batch(index)
             loss, visual = self.student.imitation_loss(
