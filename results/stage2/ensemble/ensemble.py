@@ -243,6 +243,10 @@ STUDENTS = {
             # regression (`lever_lane.sh cos-prev4-sS`; README, "A decaying learning rate").
             ("3v-cos-prev4-s7", "d3-cos-prev4-48k-s7"),
             ("3v-cos-prev4-s8", "d3-cos-prev4-48k-s8"),
+            # ... and with 32 conv channels instead of 16 (`lever_lane.sh wide32-prev4-sS`;
+            # README, "The wider encoder on the previous-action pool").
+            ("3v-wide32-prev4-s7", "d3-wide32-prev4-48k-s7"),
+            ("3v-wide32-prev4-s8", "d3-wide32-prev4-48k-s8"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -357,6 +361,8 @@ COMPARED = {
             "3v-shift8-prev4-s8",
             "3v-cos-prev4-s7",
             "3v-cos-prev4-s8",
+            "3v-wide32-prev4-s7",
+            "3v-wide32-prev4-s8",
         )
     },
 }
