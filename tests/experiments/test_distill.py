@@ -410,6 +410,31 @@ def test_a_regression_in_chunks_follows_one_cosine_and_restores_the_rate(
         distiller.regress(4, "offline", show_progress=False, decay_over=(10, 12))
 
 
+def test_weight_decay_shrinks_each_weight_beside_adams_step(tmp_path, base_policy, teacher):
+    distiller = Distiller(
+        distill_config(tmp_path, base_policy, teacher, iterations=1, weight_decay=0.5)
+    )
+    distiller.run(False)
+    assert all(group["weight_decay"] == 0.5 for group in distiller.optimizer.param_groups)
+    state = copy.deepcopy(distiller.regression_state())
+    params = list(distiller.student.actor.parameters())
+    before = [p.detach().clone() for p in params]
+    after = {}
+    for decay in (0.0, 0.5):  # one regression step from the same state, batch and crops
+        distiller.load_regression_state(copy.deepcopy(state))
+        for group in distiller.optimizer.param_groups:
+            group["weight_decay"] = decay
+        distiller.regress(1, 0, show_progress=False)
+        after[decay] = [p.detach().clone() for p in params]
+    lr = distiller.config.distill.lr
+    stepped = [i for i, p in enumerate(params) if p.grad is not None]
+    assert stepped
+    for i in stepped:  # AdamW: the same Adam step, and each weight shrunk by lr * decay
+        torch.testing.assert_close(after[0.5][i], after[0.0][i] - lr * 0.5 * before[i])
+    with pytest.raises(ValueError, match="weight_decay"):
+        tiny_settings(teacher, weight_decay=-1.0)
+
+
 def test_a_student_with_candidate_actions_trains_saves_and_acts(tmp_path, base_policy, teacher):
     student = privileged_config(tmp_path / "student", base_policy)
     student = dataclasses.replace(

@@ -247,6 +247,10 @@ STUDENTS = {
             # README, "The wider encoder on the previous-action pool").
             ("3v-wide32-prev4-s7", "d3-wide32-prev4-48k-s7"),
             ("3v-wide32-prev4-s8", "d3-wide32-prev4-48k-s8"),
+            # ... and with decoupled weight decay 0.1 / 1 (`lever_lane.sh wd0.1|wd1-prev4-sS`;
+            # README, "Weight decay in the regression").
+            ("3v-wd0.1-prev4-s7", "d3-wd0.1-prev4-48k-s7"),
+            ("3v-wd1-prev4-s7", "d3-wd1-prev4-48k-s7"),
         )
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
@@ -363,6 +367,8 @@ COMPARED = {
             "3v-cos-prev4-s8",
             "3v-wide32-prev4-s7",
             "3v-wide32-prev4-s8",
+            "3v-wd0.1-prev4-s7",
+            "3v-wd1-prev4-s7",
         )
     },
 }

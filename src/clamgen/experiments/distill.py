@@ -95,6 +95,10 @@ class DistillSettings:
     """Iteration k >= 1: the teacher drives a share teacher_share ** k of the episodes."""
     lr: float = 3e-4
     """Adam learning rate of the student's encoder and actor."""
+    weight_decay: float = 0.0
+    """Decoupled weight decay of the regression (AdamW's: every step also shrinks each weight
+    by `lr * weight_decay`; beyond the paper). 0: plain Adam, as every run before it was
+    added."""
     final_updates: int = 0
     """After the last iteration, this many more regression steps on all data with the learning
     rate decayed from `lr` to 0 along a cosine ("polishing"); the polished student is validated
@@ -206,6 +210,8 @@ class DistillSettings:
             raise ValueError(f"distill.pose_weight must be a number >= 0, got {self.pose_weight}")
         if not self.lr > 0:
             raise ValueError(f"distill.lr must be > 0, got {self.lr}")
+        if not 0 <= self.weight_decay < float("inf"):
+            raise ValueError(f"distill.weight_decay must be a number >= 0, got {self.weight_decay}")
         for name in ("pre_squash_loss_weight", "action_loss_weight"):
             if not 0 <= getattr(self, name) < float("inf"):
                 raise ValueError(f"distill.{name} must be a number >= 0, got {getattr(self, name)}")
@@ -352,7 +358,9 @@ class Distiller:
             *self.student.actor.parameters(),
             *(self.pose_head.parameters() if self._pose_loss_on() else ()),
         ]
-        self.optimizer = torch.optim.Adam(params, lr=settings.lr)
+        self.optimizer = torch.optim.Adam(
+            params, lr=settings.lr, weight_decay=settings.weight_decay, decoupled_weight_decay=True
+        )
         self.heads: dict[str, torch.nn.Module] = {}  # `add_head`'s, by name
         self.rng = np.random.default_rng([settings.seed, 1])
         self.data = _Dataset(self.keys)
