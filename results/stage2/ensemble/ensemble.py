@@ -243,15 +243,20 @@ STUDENTS = {
             # regression (`lever_lane.sh cos-prev4-sS`; README, "A decaying learning rate").
             ("3v-cos-prev4-s7", "d3-cos-prev4-48k-s7"),
             ("3v-cos-prev4-s8", "d3-cos-prev4-48k-s8"),
-            # ... and with 32 conv channels instead of 16 (`lever_lane.sh wide32-prev4-sS`;
-            # README, "The wider encoder on the previous-action pool").
-            ("3v-wide32-prev4-s7", "d3-wide32-prev4-48k-s7"),
-            ("3v-wide32-prev4-s8", "d3-wide32-prev4-48k-s8"),
             # ... and with decoupled weight decay 0.1 / 1 (`lever_lane.sh wd0.1|wd1-prev4-sS`;
             # README, "Weight decay in the regression").
             ("3v-wd0.1-prev4-s7", "d3-wd0.1-prev4-48k-s7"),
             ("3v-wd1-prev4-s7", "d3-wd1-prev4-48k-s7"),
         )
+    },
+    # Session 54: prev4's regression with 32 conv channels instead of 16 (`lever_lane.sh
+    # wide32-prev4-sS`; README, "The wider encoder on the previous-action pool"): read from
+    # runs/offline, not committed (10 MB a student; the lever stopped).
+    **{
+        f"3v-wide32-prev4-s{seed}": str(
+            ROOT / "runs" / "offline" / f"d3-wide32-prev4-48k-s{seed}" / "policy.pt"
+        )
+        for seed in (7, 8)
     },
     # Session 28: a privileged student (the teacher's architecture: true obstacle poses and arm
     # keypoints, nothing rendered) regressed on the same four-run pool as the 3-view seeds:

@@ -96,9 +96,9 @@ class DistillSettings:
     lr: float = 3e-4
     """Adam learning rate of the student's encoder and actor."""
     weight_decay: float = 0.0
-    """Decoupled weight decay of the regression (AdamW's: every step also shrinks each weight
-    by `lr * weight_decay`; beyond the paper). 0: plain Adam, as every run before it was
-    added."""
+    """Decoupled weight decay of the regression, as AdamW's (beyond the paper): every step
+    also shrinks each weight by the learning rate times this. 0: plain Adam, as every run
+    before it was added."""
     final_updates: int = 0
     """After the last iteration, this many more regression steps on all data with the learning
     rate decayed from `lr` to 0 along a cosine ("polishing"); the polished student is validated
