@@ -349,6 +349,19 @@ def test_the_least_offset_setting_reaches_the_teacher(tmp_path, base_policy, tea
         assert Distiller(config).lookahead.least_offset == least
 
 
+def record_rates(distiller: Distiller) -> list[float]:
+    """The learning rate of each later optimizer step of `distiller`, appended as it steps."""
+    rates = []
+    step = distiller.optimizer.step
+
+    def record_lr_and_step(*args, **kwargs):
+        rates.append(distiller.optimizer.param_groups[0]["lr"])
+        return step(*args, **kwargs)
+
+    distiller.optimizer.step = record_lr_and_step
+    return rates
+
+
 def test_a_finished_run_is_polished_with_a_decaying_learning_rate_and_keeps_the_best(
     tmp_path,
     base_policy,
@@ -357,14 +370,7 @@ def test_a_finished_run_is_polished_with_a_decaying_learning_rate_and_keeps_the_
     Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1)).run(False)
     polish = dict(iterations=1, final_updates=8)
     polishing = Distiller(distill_config(tmp_path, base_policy, teacher, **polish))
-    rates = []
-    step = polishing.optimizer.step
-
-    def record_lr_and_step(*args, **kwargs):
-        rates.append(polishing.optimizer.param_groups[0]["lr"])
-        return step(*args, **kwargs)
-
-    polishing.optimizer.step = record_lr_and_step
+    rates = record_rates(polishing)
     summary = polishing.run(show_progress=False)
     # No new iteration: 8 regression steps from lr down towards 0, then validation.
     assert [row["iteration"] for row in summary["iterations"]] == [0]
@@ -393,14 +399,7 @@ def test_a_regression_in_chunks_follows_one_cosine_and_restores_the_rate(
 ):
     distiller = Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1))
     distiller.run(False)
-    rates = []
-    step = distiller.optimizer.step
-
-    def record_lr_and_step(*args, **kwargs):
-        rates.append(distiller.optimizer.param_groups[0]["lr"])
-        return step(*args, **kwargs)
-
-    distiller.optimizer.step = record_lr_and_step
+    rates = record_rates(distiller)
     for first in (0, 4, 8):  # three chunks of one 12-step cosine, as offline.py --cosine runs
         distiller.regress(4, "offline", show_progress=False, decay_over=(first, 12))
         assert distiller.optimizer.param_groups[0]["lr"] == pytest.approx(3e-4)
