@@ -523,6 +523,33 @@ def test_batches_draw_states_near_their_target_more_often(tmp_path, base_policy,
         DistillSettings(near_target_m=-0.01)
 
 
+def test_batches_draw_states_whose_tip_is_near_the_target_more_often(
+    tmp_path, base_policy, teacher
+):
+    both = dict(near_tip_weight=3.0, near_target_weight=2.0)
+    weighted = Distiller(distill_config(tmp_path, base_policy, teacher, **both))
+    n = 1200
+    goals = np.zeros((n, 3))
+    goals[:, 0] = np.where(np.arange(n) % 2 == 0, 0.06, 0.5)  # every 2nd: 1 cm from the box
+    tips = goals.copy()
+    tips[:, 1] = np.where(np.arange(n) % 3 == 0, 0.04, 0.2)  # every 3rd: tip 4 cm from its goal
+    box = np.array([1, 0, 0, 0, 0, 0.05, 0.05, 0.05])
+    weighted.data.arrays = {
+        "desired_goal": goals,
+        "achieved_goal": tips,
+        "obstacles": np.tile(box, (n, 2, 1)),
+        "label": np.zeros((n, 6)),
+    }
+    drawn = weighted.batch_index(60_000)
+    # Weights 3 (tip near) and 2 (target near) multiply: per six states 6 + 3 + 2 + 1 + 2 + 1.
+    assert abs(np.mean(drawn % 3 == 0) - 9 / 15) < 0.02
+    assert abs(np.mean(drawn % 6 == 0) - 6 / 15) < 0.02
+    with pytest.raises(ValueError, match=r"distill\.near_tip_weight"):
+        DistillSettings(near_tip_weight=0.0)
+    with pytest.raises(ValueError, match=r"distill\.near_tip_m"):
+        DistillSettings(near_tip_m=-0.01)
+
+
 def test_pose_head_starts_from_the_distill_seed(tmp_path, base_policy, teacher):
     # Its initial weights used to come from torch's global stream, unseeded in a regression
     # script, so two regressions of the same settings differed.

@@ -247,6 +247,10 @@ STUDENTS = {
             # README, "Weight decay in the regression").
             ("3v-wd0.1-prev4-s7", "d3-wd0.1-prev4-48k-s7"),
             ("3v-wd1-prev4-s7", "d3-wd1-prev4-48k-s7"),
+            # ... and with the states whose tip is within 5 cm of the target drawn three times
+            # as often (`lever_lane.sh tip3-prev4-sS`; README, "Near-target states weighted").
+            ("3v-tip3-prev4-s7", "d3-tip3-prev4-48k-s7"),
+            ("3v-tip3-prev4-s8", "d3-tip3-prev4-48k-s8"),
         )
     },
     # Session 54: prev4's regression with 32 conv channels instead of 16 (`lever_lane.sh
@@ -374,6 +378,8 @@ COMPARED = {
             "3v-wide32-prev4-s8",
             "3v-wd0.1-prev4-s7",
             "3v-wd1-prev4-s7",
+            "3v-tip3-prev4-s7",
+            "3v-tip3-prev4-s8",
         )
     },
 }

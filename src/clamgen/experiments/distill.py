@@ -156,6 +156,15 @@ class DistillSettings:
     near_target_m: float = 0.02
     """The distance (m) from the target to the nearest obstacle's axis-aligned box under which
     a state counts as near for `near_target_weight`."""
+    near_tip_weight: float = 1.0
+    """Regression batches draw the states whose tip lies within `near_tip_m` of the target this
+    many times as often as the others (beyond the paper; 1: uniform, as every run before it was
+    added; with `near_target_weight` too, the two weights multiply). The 3-view students' stalls
+    on goals with room to spare end a few centimetres from the target, where even on their own
+    data they fit the labels less well (`results/stage2/ensemble/hover_labels.py`)."""
+    near_tip_m: float = 0.05
+    """The tip-to-target distance (m) under which a state counts as near for `near_tip_weight`
+    (success is within 0.02, where an episode ends)."""
     pre_squash_loss_weight: float = 1.0
     """Weight of the imitation loss's mean squared error before the tanh, between the
     student's pre-squash mean and the label (every run before `action_loss_weight` was added:
@@ -229,6 +238,12 @@ class DistillSettings:
             raise ValueError(
                 f"distill.near_target_weight must be a number > 0, got {self.near_target_weight}"
             )
+        if not 0 < self.near_tip_weight < float("inf"):
+            raise ValueError(
+                f"distill.near_tip_weight must be a number > 0, got {self.near_tip_weight}"
+            )
+        if not 0 <= self.near_tip_m < float("inf"):
+            raise ValueError(f"distill.near_tip_m must be a number >= 0, got {self.near_tip_m}")
         if not 0 <= self.near_target_m < float("inf"):
             raise ValueError(
                 f"distill.near_target_m must be a number >= 0, got {self.near_target_m}"
@@ -364,7 +379,7 @@ class Distiller:
         self.heads: dict[str, torch.nn.Module] = {}  # `add_head`'s, by name
         self.rng = np.random.default_rng([settings.seed, 1])
         self.data = _Dataset(self.keys)
-        self._weights_cdf = np.zeros(0)  # near_target_weight's, for the data's current size
+        self._weights_cdf = np.zeros(0)  # the near weights', for the data's current size
         self.history: list[dict[str, Any]] = []
         self.final: dict[str, Any] | None = None  # the polished student's validation
         self.next_seed = DISTILL_SEED_BASE + settings.seed * 100_000
@@ -613,8 +628,10 @@ class Distiller:
 
     def draw(self, low: int, high: int, size: int) -> np.ndarray:
         """`size` state indices from [low, high): uniform, or with the states near their target
-        (`near_target_m`) `near_target_weight` times as likely as the others."""
-        if self.config.distill.near_target_weight == 1.0:
+        (`near_target_m`) `near_target_weight` times as likely as the others and those whose
+        tip is near the target (`near_tip_m`) `near_tip_weight` times."""
+        settings = self.config.distill
+        if settings.near_target_weight == 1.0 and settings.near_tip_weight == 1.0:
             return self.rng.integers(low, high, size)  # the random stream of earlier runs
         cdf = self._cdf()
         start = cdf[low - 1] if low else 0.0
@@ -628,6 +645,11 @@ class Distiller:
                 self.data.column("desired_goal"), self.data.column("obstacles")
             )
             weights = np.where(clearance < settings.near_target_m, settings.near_target_weight, 1.0)
+            if settings.near_tip_weight != 1.0:
+                tip = np.linalg.norm(
+                    self.data.column("achieved_goal") - self.data.column("desired_goal"), axis=1
+                )
+                weights = weights * np.where(tip < settings.near_tip_m, settings.near_tip_weight, 1)
             self._weights_cdf = np.cumsum(weights)
         return self._weights_cdf
 
