@@ -21,6 +21,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from near_labels import row_cosine, student_actions  # (this directory: the script's own)
 
 from clamgen.experiments.policies import load_policy
 
@@ -34,12 +35,6 @@ BANDS_M = ((0.02, 0.05), (0.05, 0.10), (0.10, np.inf))
 """Tip-to-target distance bands (m); success is within 0.02."""
 INPUTS = ("images", "observation", "achieved_goal", "desired_goal", "previous_action")
 BATCH = 200
-
-
-def cosine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cosine of two (N, A) arrays."""
-    norms = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
-    return (a * b).sum(1) / np.maximum(norms, 1e-9)
 
 
 def band_name(low: float, high: float) -> str:
@@ -73,7 +68,7 @@ def main() -> None:
     moved = np.full(len(tip), np.inf)
     moved[:-lag] = np.linalg.norm(tip[lag:] - tip[:-lag], axis=1)
     agree = np.zeros(len(tip))
-    agree[:-lag] = cosine(label[lag:], label[:-lag])
+    agree[:-lag] = row_cosine(label[lag:], label[:-lag])
     distance = np.linalg.norm(tip - goal, axis=1)
     print(f"{args.pool}: {len(tip)} states, {paired.sum()} with a successor {lag} rows on")
     print("the teacher's labels at a state and its successor (cosine after the tanh):")
@@ -102,13 +97,9 @@ def main() -> None:
     }
     for name, rows in groups.items():
         index = np.sort(rng.choice(np.flatnonzero(rows), args.states, replace=False))
-        means = []
-        for start in range(0, len(index), BATCH):
-            batch = index[start : start + BATCH]
-            means.append(agent.mean_action({k: np.asarray(arrays[k][batch]) for k in INPUTS}))
-        action = np.tanh(np.concatenate(means))
+        action = student_actions(agent, arrays, INPUTS, index, BATCH)
         target = label[index]
-        fit = cosine(action, target)
+        fit = row_cosine(action, target)
         print(
             f"  {name}: {rows.sum()} states; length label "
             f"{np.linalg.norm(target, axis=1).mean():.2f}, student "

@@ -27,6 +27,22 @@ BANDS_M = ((0.02, 0.05), (0.05, 0.10), (0.10, np.inf))
 BATCH = 250
 
 
+def row_cosine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cosine of two (N, A) arrays."""
+    norms = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    return (a * b).sum(1) / np.maximum(norms, 1e-9)
+
+
+def student_actions(agent, arrays: dict, inputs, index: np.ndarray, batch: int) -> np.ndarray:
+    """(N, A) the actions (tanh of the pre-squash means) `agent` takes on the pool's rows
+    `index`, reading the arrays named in `inputs`, `batch` rows at a time."""
+    means = []
+    for start in range(0, len(index), batch):
+        rows = index[start : start + batch]
+        means.append(agent.mean_action({key: np.asarray(arrays[key][rows]) for key in inputs}))
+    return np.tanh(np.concatenate(means))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--pool", type=Path, default=Path("runs/pool-cache/d3-prev4"))
@@ -48,15 +64,11 @@ def main() -> None:
     for low, high in BANDS_M:
         band = np.flatnonzero((distance >= low) & (distance < high))
         index = np.sort(rng.choice(band, min(args.states, len(band)), replace=False))
-        student = []
-        for start in range(0, len(index), BATCH):
-            rows = index[start : start + BATCH]
-            batch = {key: np.asarray(arrays[key][rows]) for key in arrays if key != "label"}
-            student.append(agent.mean_action(batch))
-        action = np.tanh(np.concatenate(student))
+        inputs = [key for key in arrays if key != "label"]
+        action = student_actions(agent, arrays, inputs, index, BATCH)
         label = np.tanh(np.asarray(arrays["label"][index]))
         lengths = np.linalg.norm(action, axis=1), np.linalg.norm(label, axis=1)
-        cosine = (action * label).sum(1) / np.maximum(lengths[0] * lengths[1], 1e-9)
+        cosine = row_cosine(action, label)
         error = ((action - label) ** 2).mean()
         name = (
             f"over {low * 100:.0f} cm" if high == np.inf else f"{low * 100:.0f}-{high * 100:.0f} cm"
