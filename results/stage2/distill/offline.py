@@ -165,6 +165,21 @@ def main() -> None:
         "the run's)",
     )
     parser.add_argument(
+        "--spatial-softmax",
+        action="store_true",
+        help="end each view's convolutions in a spatial softmax: 2 keypoint coordinates per "
+        "channel instead of the flattened map (agent.encoder.spatial_softmax)",
+    )
+    parser.add_argument(
+        "--encoder-strides",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="S",
+        help="stride of each of the student's conv layers (agent.encoder.strides; default: "
+        "the run's)",
+    )
+    parser.add_argument(
         "--num-views",
         type=int,
         default=None,
@@ -282,6 +297,14 @@ def main() -> None:
     if args.encoder_channels:
         agent_changes["encoder"] = dataclasses.replace(
             student.agent.encoder, num_channels=args.encoder_channels
+        )
+    if args.spatial_softmax or args.encoder_strides:
+        encoder = agent_changes.get("encoder", student.agent.encoder)
+        strides = tuple(args.encoder_strides) if args.encoder_strides else encoder.strides
+        agent_changes["encoder"] = dataclasses.replace(
+            encoder,
+            spatial_softmax=args.spatial_softmax or encoder.spatial_softmax,
+            strides=strides,
         )
     if args.num_views:
         encoder = agent_changes.get("encoder", student.agent.encoder)
@@ -446,6 +469,8 @@ def main() -> None:
         "torch_threads": args.torch_threads or student.loop.torch_threads,
         "hidden_sizes": list(student.agent.hidden_sizes),
         "encoder_channels": student.agent.encoder.num_channels,
+        "encoder_strides": list(student.agent.encoder.strides),
+        "spatial_softmax": student.agent.encoder.spatial_softmax,
         "view_dropout": student.agent.view_dropout,
         "actor_components": student.agent.actor_components,
         "goal_offset": student.agent.goal_offset,

@@ -22,7 +22,9 @@
 #         cos-prev4-sS (session 54: the learning rate decayed to 0 along a cosine, --cosine),
 #         wide32-prev4-sS (32 conv channels instead of 16, --encoder-channels 32),
 #         wd0.1-prev4-sS, wd1-prev4-sS (decoupled weight decay 0.1 / 1, --set weight_decay=),
-#         tip3-prev4-sS (states whose tip is within 5 cm of the target drawn 3 times as often)
+#         tip3-prev4-sS (states whose tip is within 5 cm of the target drawn 3 times as often),
+#         ssm-prev4-sS (session 55: a spatial-softmax encoder, --spatial-softmax, on the
+#         recipe's conv strides 2, 2, 1, 1), ssm21-prev4-sS (the same on strides 2, 1, 1, 1)
 # One block, read whole before it runs: the script can be edited while a lane runs it.
 {
 set -e
@@ -46,7 +48,7 @@ for NAME in "$@"; do
       CACHE=runs/pool-cache/d3-least4 ;;
     prev4-s[0-9]* | tanh-prev4-s[0-9]* | l1-prev4-s[0-9]* | goal-prev4-s[0-9]* | center-prev4-s[0-9]* | \
     shift8-prev4-s[0-9]* | cos-prev4-s[0-9]* | wide32-prev4-s[0-9]* | wd*-prev4-s[0-9]* | \
-    tip3-prev4-s[0-9]*)
+    tip3-prev4-s[0-9]* | ssm-prev4-s[0-9]* | ssm21-prev4-s[0-9]*)
       KIND=${NAME%prev4-s*}; SEED=${NAME##*-s}; OUT=runs/offline/d3-${KIND}prev4-48k-s$SEED
       ARGS="--updates 48000"; SRC=runs/reseed/d3-prev-seed1
       POOL="runs/reseed/d3-prev-seed2 runs/reseed/d3-prev-seed3 runs/reseed/d3-prev-seed4"
@@ -63,10 +65,12 @@ for NAME in "$@"; do
         wd0.1-) SETS="weight_decay=0.1" ;;
         wd1-) SETS="weight_decay=1" ;;
         tip3-) SETS="near_tip_weight=3" ;;
+        ssm-) ARGS="$ARGS --spatial-softmax" ;;
+        ssm21-) ARGS="$ARGS --spatial-softmax --encoder-strides 2 1 1 1" ;;
         "") ;;
         *) echo "lever_lane.sh: unknown regression '$NAME'" >&2; exit 2 ;;
       esac ;;
-    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS, l1-prev4-sS, goal-prev4-sS, center-prev4-sS, shift8-prev4-sS, cos-prev4-sS, wide32-prev4-sS, wd0.1-prev4-sS, wd1-prev4-sS, tip3-prev4-sS)" >&2; exit 2 ;;
+    *) echo "lever_lane.sh: unknown regression '$NAME' (reg-sS, wide32-s7, reg96k-s7, nodrop-s7, pool8-sS, pool7-sS, least4-sS, prev4-sS, tanh-prev4-sS, l1-prev4-sS, goal-prev4-sS, center-prev4-sS, shift8-prev4-sS, cos-prev4-sS, wide32-prev4-sS, wd0.1-prev4-sS, wd1-prev4-sS, tip3-prev4-sS, ssm-prev4-sS, ssm21-prev4-sS)" >&2; exit 2 ;;
   esac
   [ -f $OUT/policy.pt ] && continue
   .venv/bin/python results/stage2/distill/offline.py $SRC $OUT $ARGS --torch-threads 1 \
