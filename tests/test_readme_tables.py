@@ -1,6 +1,7 @@
-"""The README's Table 2 is a copy of committed results: every line of it is the line that
-`clamgen.experiments.tables.table2_markdown` writes for that row from a committed Table 2
-JSON under results/ (so a number in the README cannot drift from its file)."""
+"""The README's Table 2 and the full one (results/table2/README.md) are copies of committed
+results: every line of them is the line that `clamgen.experiments.tables.table2_markdown`
+writes for that row from a committed Table 2 JSON under results/ (so a number in either cannot
+drift from its file)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,13 @@ import pytest
 from clamgen.experiments.tables import ObstacleRow, table2_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
-HEADING = "### Table 2: obstacles, on the standard and the blocked-path tasks"
+TABLES = {
+    "README.md": "### Table 2: obstacles, on the standard and the blocked-path tasks",
+    "results/table2/README.md": (
+        "# Table 2, every row: obstacles, on the standard and the blocked-path tasks"
+    ),
+}
+"""Each file with a Table 2, and the heading its table follows."""
 
 
 def _row_name(line: str) -> str:
@@ -35,9 +42,10 @@ def committed_lines() -> dict[str, set[str]]:
     return lines
 
 
-def readme_table2() -> list[str]:
-    text = (ROOT / "README.md").read_text().splitlines()
-    start = text.index(HEADING)
+def readme_table2(path: str = "README.md") -> list[str]:
+    """The lines of the first table after `path`'s Table 2 heading."""
+    text = (ROOT / path).read_text().splitlines()
+    start = text.index(TABLES[path])
     header = next(i for i in range(start, len(text)) if text[i].startswith("| row |"))
     table = []
     for line in text[header + 2 :]:
@@ -47,12 +55,19 @@ def readme_table2() -> list[str]:
     return table
 
 
-def test_readme_table2_rows_come_from_committed_results():
-    lines = readme_table2()
+@pytest.mark.parametrize("path", TABLES)
+def test_table2_rows_come_from_committed_results(path):
+    lines = readme_table2(path)
     assert len(lines) > 20
     committed = committed_lines()
     drifted = [line for line in lines if line not in committed.get(_row_name(line), set())]
-    assert not drifted, "README Table 2 rows that no committed JSON gives:\n" + "\n".join(drifted)
+    assert not drifted, f"{path} Table 2 rows that no committed JSON gives:\n" + "\n".join(drifted)
+
+
+def test_the_readme_table2_is_a_selection_of_the_full_one():
+    full = set(readme_table2("results/table2/README.md"))
+    assert set(readme_table2()) <= full
+    assert len(full) > len(readme_table2())
 
 
 @pytest.mark.parametrize(

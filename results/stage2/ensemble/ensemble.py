@@ -251,6 +251,11 @@ STUDENTS = {
             # as often (`lever_lane.sh tip3-prev4-sS`; README, "Near-target states weighted").
             ("3v-tip3-prev4-s7", "d3-tip3-prev4-48k-s7"),
             ("3v-tip3-prev4-s8", "d3-tip3-prev4-48k-s8"),
+            # Session 55: ... with a spatial-softmax encoder, on the recipe's conv strides
+            # 2, 2, 1, 1 and on 2, 1, 1, 1 (`lever_lane.sh ssm-prev4-sS` / `ssm21-prev4-sS`;
+            # README, "A keypoint encoder").
+            ("3v-ssm-prev4-s7", "d3-ssm-prev4-48k-s7"),
+            ("3v-ssm21-prev4-s7", "d3-ssm21-prev4-48k-s7"),
         )
     },
     # Session 54: prev4's regression with 32 conv channels instead of 16 (`lever_lane.sh
@@ -380,6 +385,8 @@ COMPARED = {
             "3v-wd1-prev4-s7",
             "3v-tip3-prev4-s7",
             "3v-tip3-prev4-s8",
+            "3v-ssm-prev4-s7",
+            "3v-ssm21-prev4-s7",
         )
     },
 }
