@@ -188,6 +188,7 @@ STUDENTS = {
     "3v-s5": str(HERE / "3v-dagger+2_policy.pt"),
     "3v-s7": str(SEEDS / "d3_seed7_policy.pt"),
     "3v-s8": str(SEEDS / "d3_seed8_policy.pt"),
+    "3v-s9": str(SEEDS / "d3_seed9_policy.pt"),  # session 32's fourth seed of the recipe
     "3v-mean578-distilled": str(ROOT / "runs" / "offline" / "d3-mean578" / "policy.pt"),
     # ... the students' teacher without its lookahead (true obstacle poses, acting reactively;
     # renders nothing): does a reactive policy that sees the poses exactly fail the same tasks?
@@ -256,6 +257,10 @@ STUDENTS = {
             # README, "A keypoint encoder").
             ("3v-ssm-prev4-s7", "d3-ssm-prev4-48k-s7"),
             ("3v-ssm21-prev4-s7", "d3-ssm21-prev4-48k-s7"),
+            # ... and the previous-action pool's regressions continued two DAgger iterations
+            # as the shipped recipe's (README, "The previous-action pool's student, continued").
+            ("3v-prev4-s7-dagger+2", "d3-prev4-48k-s7-dagger"),
+            ("3v-prev4-s8-dagger+2", "d3-prev4-48k-s8-dagger"),
         )
     },
     # Session 54: prev4's regression with 32 conv channels instead of 16 (`lever_lane.sh
@@ -388,6 +393,10 @@ COMPARED = {
             "3v-ssm-prev4-s7",
             "3v-ssm21-prev4-s7",
         )
+    },
+    **{
+        name: ("3v-s5", "3v-s7", "3v-s8", "3v-s9", "3v-prev4-s7")
+        for name in ("3v-prev4-s7-dagger+2", "3v-prev4-s8-dagger+2")
     },
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""
