@@ -112,6 +112,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, required=True, help="a distill seed no run used")
     parser.add_argument("--torch-threads", type=int, default=None, help="not saved")
     parser.add_argument(
+        "--driver-noise",
+        type=float,
+        default=None,
+        metavar="SD",
+        help="Gaussian noise on the student's actions while it drives (distill.driver_noise; "
+        "DART; default: the source's setting, 0)",
+    )
+    parser.add_argument(
         "--pool-cache", type=Path, default=None, metavar="DIR", help="as offline.py's"
     )
     args = parser.parse_args()
@@ -126,7 +134,12 @@ def main() -> None:
     changes = {"lookahead_candidates": lookahead, "seed": args.seed}
     if args.episodes:
         changes["episodes_per_iteration"] = args.episodes
-    settings = DistillSettings(**{**saved["distill"], **changes})
+    if args.driver_noise is not None:
+        changes["driver_noise"] = args.driver_noise
+    try:
+        settings = DistillSettings(**{**saved["distill"], **changes})
+    except ValueError as error:
+        raise SystemExit(str(error)) from None
     student = config_from_json(json.dumps(saved["student"]), Stage2Config)
     student = dataclasses.replace(student, run_dir=args.out)
     distiller = Continuation(DistillConfig(student=student, distill=settings))
@@ -190,6 +203,7 @@ def main() -> None:
         "updates": args.updates,
         "new_share": args.new_share,
         "seed": args.seed,
+        "driver_noise": settings.driver_noise,
         "torch_threads": args.torch_threads or student.loop.torch_threads,
         "history": distiller.history,
     }

@@ -261,6 +261,10 @@ STUDENTS = {
             # as the shipped recipe's (README, "The previous-action pool's student, continued").
             ("3v-prev4-s7-dagger+2", "d3-prev4-48k-s7-dagger"),
             ("3v-prev4-s8-dagger+2", "d3-prev4-48k-s8-dagger"),
+            # ... and the same with noise on the student's actions while it drives (DART;
+            # README, "The continuation with noise on the student's actions").
+            ("3v-prev4-s7-dart+2", "d3-prev4-48k-s7-dart"),
+            ("3v-prev4-s8-dart+2", "d3-prev4-48k-s8-dart"),
         )
     },
     # Session 54: prev4's regression with 32 conv channels instead of 16 (`lever_lane.sh
@@ -397,6 +401,10 @@ COMPARED = {
     **{
         name: ("3v-s5", "3v-s7", "3v-s8", "3v-s9", "3v-prev4-s7")
         for name in ("3v-prev4-s7-dagger+2", "3v-prev4-s8-dagger+2")
+    },
+    **{
+        name: ("3v-s5", "3v-s7", "3v-s8", "3v-s9", "3v-prev4-s7", "3v-prev4-s7-dagger+2")
+        for name in ("3v-prev4-s7-dart+2", "3v-prev4-s8-dart+2")
     },
 }
 """Who each policy is compared with task by task in the summary, where both ran on the block."""

@@ -73,6 +73,8 @@ DISTILL_SEED_BASE = 800_000_000
 # student (`student_keys`) reads `obstacles` in place of `images`.
 STUDENT_KEYS = ("images", "observation", "achieved_goal", "desired_goal")
 STATE_NAME = "student.pt"
+DRIVER_NOISE_STREAM = 2
+"""The second number of the seed of `driver_noise`'s random stream (the episodes' is 1)."""
 # Numbers per obstacle in the `obstacles` observation (`Obstacles.as_array`): the kind's one-hot
 # (2), then lengths in metres: the centre (3) and the half sizes (3).
 POSE_SIZE = 8
@@ -183,6 +185,13 @@ class DistillSettings:
     where labels at nearby states disagree, their mean) or "absolute" (its mean absolute
     value: per component, their median, which keeps the side most labels take where they
     pass an obstacle both ways)."""
+    driver_noise: float = 0.0
+    """Standard deviation of Gaussian noise added to each joint of the student's action where
+    the student drives an episode (the action then clipped to [-1, 1]); the teacher labels the
+    states the noisy actions reach, and its own driving and validation stay noise-free (beyond
+    the paper; 0: off, every run before it was added). DART's remedy (Laskey et al., 2017)
+    for a student that fails where it leaves its own path: its data then also holds the
+    states around that path."""
     seed: int = 0
     """Seed of the episodes (training seeds from `DISTILL_SEED_BASE + seed * 100000`), the
     student's initialisation and its batches."""
@@ -200,6 +209,8 @@ class DistillSettings:
             raise ValueError(
                 f"distill.lookahead_noise must be a number >= 0, got {self.lookahead_noise}"
             )
+        if not 0 <= self.driver_noise < float("inf"):
+            raise ValueError(f"distill.driver_noise must be a number >= 0, got {self.driver_noise}")
         if not 0 <= self.lookahead_margin_m < float("inf"):
             raise ValueError(
                 f"distill.lookahead_margin_m must be a number >= 0, got {self.lookahead_margin_m}"
@@ -378,6 +389,8 @@ class Distiller:
         )
         self.heads: dict[str, torch.nn.Module] = {}  # `add_head`'s, by name
         self.rng = np.random.default_rng([settings.seed, 1])
+        # Its own stream, so that the noise leaves the episodes' and batches' draws as they were.
+        self.noise_rng = np.random.default_rng([settings.seed, DRIVER_NOISE_STREAM])
         self.data = _Dataset(self.keys)
         self._weights_cdf = np.zeros(0)  # the near weights', for the data's current size
         self.history: list[dict[str, Any]] = []
@@ -501,8 +514,12 @@ class Distiller:
                 rows[key].append(batch[key])
             rows["label"].append(labels.astype(np.float32))
             still = []
+            noise = self.config.distill.driver_noise
             for j, i in enumerate(active):
                 action = np.tanh(labels[j]) if driver[i] else student[j]
+                if noise and not driver[i]:
+                    jolt = self.noise_rng.normal(0.0, noise, action.shape)
+                    action = np.clip(action + jolt, -1.0, 1.0)
                 if not driver[i] and self.planners:
                     self.planners[i].off_plan()
                 obs[i], _, terminated, truncated, info = self.envs[i].step(action)
@@ -698,6 +715,7 @@ class Distiller:
             "next_seed": self.next_seed,
             "history": self.history,
             "lookahead_rng": self.lookahead.rng.bit_generator.state if self.lookahead else None,
+            "noise_rng": self.noise_rng.bit_generator.state,
         }
 
     def regression_state(self) -> dict[str, Any]:
@@ -726,6 +744,8 @@ class Distiller:
         self.next_seed = state["next_seed"]
         self.history = list(state["history"])
         self.final = state.get("final")
+        if state.get("noise_rng") is not None:  # (absent from states saved before it existed)
+            self.noise_rng.bit_generator.state = state["noise_rng"]
         if self.lookahead is not None and state.get("lookahead_rng") is not None:
             self.lookahead.rng.bit_generator.state = state["lookahead_rng"]
 
