@@ -5,6 +5,7 @@ import dataclasses
 import itertools
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from test_stage2 import LOOP, image_config
 from test_train import tiny_config
 
 from clamgen.agents.residual import imitation_error
-from clamgen.experiments.config import load_preset
+from clamgen.experiments.config import config_to_json, load_preset
 from clamgen.experiments.distill import (
     TARGET_CLIP,
     DistillConfig,
@@ -685,3 +686,24 @@ def test_driver_noise_moves_the_student_off_its_path_and_the_teacher_labels_wher
         np.testing.assert_array_equal(rows, driven_noisy[key])
     with pytest.raises(ValueError, match=r"distill\.driver_noise"):
         DistillSettings(driver_noise=-0.1)
+
+
+def test_an_offline_regression_saved_before_a_setting_existed_is_the_same_job(
+    results_script, monkeypatch
+):
+    root = Path(__file__).resolve().parents[2]
+    monkeypatch.syspath_prepend(str(root / "results" / "stage2" / "distill"))  # its siblings
+    offline = results_script("stage2/distill/offline.py")
+    student = json.loads(config_to_json(load_preset("residual-cpu", Stage2Config)))
+    settings = dataclasses.asdict(DistillSettings(teacher="teacher.pt", seed=8))
+    job = {"student": student, "distill": settings, "sources": [["run", None]], "updates": 9}
+    older = copy.deepcopy(job)  # saved before these settings were added: their defaults
+    del older["distill"]["driver_noise"], older["distill"]["near_tip_weight"]
+    del older["student"]["agent"]["goal_offset"]
+    assert offline.with_defaults(older) == offline.with_defaults(job)
+    other = copy.deepcopy(older)
+    other["distill"]["lr"] = 1e-3
+    assert offline.with_defaults(other) != offline.with_defaults(job)
+    named = copy.deepcopy(job)  # a setting named away from its default is another job
+    named["distill"]["driver_noise"] = 0.3
+    assert offline.with_defaults(named) != offline.with_defaults(older)

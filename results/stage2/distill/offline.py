@@ -69,6 +69,18 @@ def mean_labels(agents: list, chunk: dict[str, np.ndarray]) -> np.ndarray:
     return out
 
 
+def with_defaults(job: dict) -> dict:
+    """`job` with every student and distill setting it lacks at its default: a regression
+    saved before a setting existed ran with that setting's default, so it is the same job as
+    one that names the default (and resumes)."""
+    student = config_from_json(json.dumps(job["student"]), Stage2Config)
+    return {
+        **job,
+        "student": json.loads(config_to_json(student)),
+        "distill": dataclasses.asdict(DistillSettings(**job["distill"])),
+    }
+
+
 def regress_resumably(
     distiller: Distiller, updates: int, out: Path, job: dict, cosine: bool = False
 ) -> float | None:
@@ -81,7 +93,7 @@ def regress_resumably(
     done, loss = 0, None
     if path.exists():
         state = ckpt.load_torch(path, kind="offline-progress")
-        if state["job"] != job:
+        if with_defaults(state["job"]) != with_defaults(job):
             raise SystemExit(
                 f"{path} is the progress of a regression with other options: "
                 "run the same command, or remove it to start again"
