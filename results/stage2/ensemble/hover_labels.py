@@ -21,7 +21,14 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from near_labels import row_cosine, student_actions  # (this directory: the script's own)
+from near_labels import (  # (this directory: the script's own)
+    BANDS_M,
+    POOL,
+    band_name,
+    open_pool,
+    row_cosine,
+    student_actions,
+)
 
 from clamgen.experiments.policies import load_policy
 
@@ -31,30 +38,19 @@ HOVER_M = 0.003
 """The tip moved less than this between a state and its successor: a hover."""
 MOVING_M = 0.01
 """... more than this: moving."""
-BANDS_M = ((0.02, 0.05), (0.05, 0.10), (0.10, np.inf))
-"""Tip-to-target distance bands (m); success is within 0.02."""
 INPUTS = ("images", "observation", "achieved_goal", "desired_goal", "previous_action")
 BATCH = 200
 
 
-def band_name(low: float, high: float) -> str:
-    return f"over {low * 100:.0f} cm" if high == np.inf else f"{low * 100:.0f}-{high * 100:.0f} cm"
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--pool", type=Path, default=Path("runs/pool-cache/d3-prev4"))
+    parser.add_argument("--pool", type=Path, default=POOL)
     parser.add_argument(
         "--policy", default="results/stage2/ensemble/levers33/d3-prev4-48k-s7_policy.pt"
     )
     parser.add_argument("--states", type=int, default=800)
     args = parser.parse_args()
-    if not (args.pool / "images.npy").exists():
-        parser.error(f"{args.pool}: no memory-mapped pool (offline.py --pool-cache writes one)")
-    arrays = {
-        key: np.load(args.pool / f"{key}.npy", mmap_mode="r")
-        for key in (*INPUTS, "label", "obstacles")
-    }
+    arrays = open_pool(parser, args.pool, (*INPUTS, "label", "obstacles"))
     tip = np.asarray(arrays["achieved_goal"])
     goal = np.asarray(arrays["desired_goal"])
     scene = np.asarray(arrays["obstacles"]).reshape(len(tip), -1)

@@ -24,7 +24,23 @@ from clamgen.experiments.policies import load_policy
 
 BANDS_M = ((0.02, 0.05), (0.05, 0.10), (0.10, np.inf))
 """Tip-to-target distance bands (m); success is within 0.02."""
+POOL = Path("runs/pool-cache/d3-prev4")
+"""The memory-mapped pool these descriptions read by default (session 50's previous-action
+pool, written by `offline.py --pool-cache`)."""
 BATCH = 250
+
+
+def band_name(low: float, high: float) -> str:
+    """A band of `BANDS_M` as the outputs name it."""
+    return f"over {low * 100:.0f} cm" if high == np.inf else f"{low * 100:.0f}-{high * 100:.0f} cm"
+
+
+def open_pool(parser: argparse.ArgumentParser, pool: Path, keys) -> dict[str, np.ndarray]:
+    """The pool's arrays named in `keys`, memory-mapped read-only; a missing pool is the
+    parser's one-line error."""
+    if not (pool / "images.npy").exists():
+        parser.error(f"{pool}: no memory-mapped pool (offline.py --pool-cache writes one)")
+    return {key: np.load(pool / f"{key}.npy", mmap_mode="r") for key in keys}
 
 
 def row_cosine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -45,18 +61,14 @@ def student_actions(agent, arrays: dict, inputs, index: np.ndarray, batch: int) 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--pool", type=Path, default=Path("runs/pool-cache/d3-prev4"))
+    parser.add_argument("--pool", type=Path, default=POOL)
     parser.add_argument(
         "--policy", default="results/stage2/ensemble/levers33/d3-pool4-48k-s7_policy.pt"
     )
     parser.add_argument("--states", type=int, default=1500)
     args = parser.parse_args()
-    if not (args.pool / "images.npy").exists():
-        parser.error(f"{args.pool}: no memory-mapped pool (offline.py --pool-cache writes one)")
-    arrays = {
-        key: np.load(args.pool / f"{key}.npy", mmap_mode="r")
-        for key in ("images", "observation", "achieved_goal", "desired_goal", "label")
-    }
+    keys = ("images", "observation", "achieved_goal", "desired_goal", "label")
+    arrays = open_pool(parser, args.pool, keys)
     distance = np.linalg.norm(arrays["achieved_goal"] - arrays["desired_goal"], axis=1)
     agent = load_policy(args.policy)[0].agent
     rng = np.random.default_rng(0)
@@ -70,9 +82,7 @@ def main() -> None:
         lengths = np.linalg.norm(action, axis=1), np.linalg.norm(label, axis=1)
         cosine = row_cosine(action, label)
         error = ((action - label) ** 2).mean()
-        name = (
-            f"over {low * 100:.0f} cm" if high == np.inf else f"{low * 100:.0f}-{high * 100:.0f} cm"
-        )
+        name = band_name(low, high)
         share = len(band) / len(distance)
         print(
             f"{name}: {len(band)} states ({share:.2f}); action "
