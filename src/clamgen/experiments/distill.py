@@ -493,6 +493,7 @@ class Distiller:
         bar = tqdm(total=wanted, desc=f"iteration {iteration} episodes", disable=not show_progress)
         active = list(range(len(self.envs)))
         collided = [False] * len(self.envs)
+        noise = self.config.distill.driver_noise
         if self.lookahead is not None:
             counts = (self.lookahead.rollouts, self.lookahead.searches)
         while active:
@@ -514,7 +515,6 @@ class Distiller:
                 rows[key].append(batch[key])
             rows["label"].append(labels.astype(np.float32))
             still = []
-            noise = self.config.distill.driver_noise
             for j, i in enumerate(active):
                 action = np.tanh(labels[j]) if driver[i] else student[j]
                 if noise and not driver[i]:
@@ -658,15 +658,15 @@ class Distiller:
     def _cdf(self) -> np.ndarray:
         if len(self._weights_cdf) != len(self.data):  # new states since it was built
             settings = self.config.distill
-            clearance = target_clearance_m(
-                self.data.column("desired_goal"), self.data.column("obstacles")
-            )
-            weights = np.where(clearance < settings.near_target_m, settings.near_target_weight, 1.0)
+            goal = self.data.column("desired_goal")
+            weights = np.ones(len(goal))
+            if settings.near_target_weight != 1.0:
+                clearance = target_clearance_m(goal, self.data.column("obstacles"))
+                near = clearance < settings.near_target_m
+                weights *= np.where(near, settings.near_target_weight, 1)
             if settings.near_tip_weight != 1.0:
-                tip = np.linalg.norm(
-                    self.data.column("achieved_goal") - self.data.column("desired_goal"), axis=1
-                )
-                weights = weights * np.where(tip < settings.near_tip_m, settings.near_tip_weight, 1)
+                tip = np.linalg.norm(self.data.column("achieved_goal") - goal, axis=1)
+                weights *= np.where(tip < settings.near_tip_m, settings.near_tip_weight, 1)
             self._weights_cdf = np.cumsum(weights)
         return self._weights_cdf
 
