@@ -661,14 +661,15 @@ def test_added_heads_start_from_the_seed_and_resume_with_the_regression(
 def test_driver_noise_moves_the_student_off_its_path_and_the_teacher_labels_where_it_went(
     tmp_path, base_policy, teacher
 ):
-    def collect(noise: float, share: float) -> dict:
+    def collect(noise: float, share: float) -> tuple[Distiller, dict]:
         config = distill_config(tmp_path / f"{noise}-{share}", base_policy, teacher)
         config = dataclasses.replace(
             config, distill=dataclasses.replace(config.distill, driver_noise=noise)
         )
-        return Distiller(config).collect_iteration(share, 0, show_progress=False)[0]
+        distiller = Distiller(config)
+        return distiller, distiller.collect_iteration(share, 0, show_progress=False)[0]
 
-    quiet, noisy = collect(0.0, 0.0), collect(0.5, 0.0)
+    (_, quiet), (distiller, noisy) = collect(0.0, 0.0), collect(0.5, 0.0)
     envs = 2  # image_config's envs, stepped together: each step stores one row per env
     # The same tasks (the noise has its own random stream), so the same first states ...
     np.testing.assert_array_equal(quiet["observation"][:envs], noisy["observation"][:envs])
@@ -677,11 +678,10 @@ def test_driver_noise_moves_the_student_off_its_path_and_the_teacher_labels_wher
     assert not np.allclose(quiet["observation"][second], noisy["observation"][second])
     # The teacher labels the states the noisy actions reached.
     obs = {k: noisy[k][: 2 * envs] for k in ("observation", "desired_goal", "obstacles")}
-    distiller = Distiller(distill_config(tmp_path / "labels", base_policy, teacher))
     expected = np.clip(distiller.teacher.mean_action(obs), -TARGET_CLIP, TARGET_CLIP)
     np.testing.assert_allclose(noisy["label"][: 2 * envs], expected, atol=1e-5)
     # Where the teacher drives, nothing changes.
-    driven, driven_noisy = collect(0.0, 1.0), collect(0.5, 1.0)
+    (_, driven), (_, driven_noisy) = collect(0.0, 1.0), collect(0.5, 1.0)
     for key, rows in driven.items():
         np.testing.assert_array_equal(rows, driven_noisy[key])
     with pytest.raises(ValueError, match=r"distill\.driver_noise"):
