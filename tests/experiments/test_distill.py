@@ -410,6 +410,24 @@ def test_a_regression_in_chunks_follows_one_cosine_and_restores_the_rate(
         distiller.regress(4, "offline", show_progress=False, decay_over=(10, 12))
 
 
+def test_a_regression_reports_its_last_batchs_loss_and_the_mean_over_its_batches(
+    tmp_path, base_policy, teacher
+):
+    distiller = Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1))
+    distiller.run(False)
+    row = distiller.history[0]
+    assert np.isfinite(row["loss"]) and np.isfinite(row["loss_mean"])
+    state = copy.deepcopy(distiller.regression_state())
+    whole = distiller.regress(5, "offline", show_progress=False)
+    distiller.load_regression_state(state)  # the same five batches, one step at a time
+    steps = [distiller.regress(1, "offline", show_progress=False) for _ in range(5)]
+    assert whole.batches == 5 and all(step.batches == 1 for step in steps)
+    assert all(step.last == step.mean for step in steps)
+    assert whole.last == steps[-1].last
+    assert whole.mean == pytest.approx(np.mean([step.last for step in steps]), rel=1e-6)
+    assert distiller.regress(0, "offline", show_progress=False) == (None, None, 0)
+
+
 def test_weight_decay_shrinks_each_weight_beside_adams_step(tmp_path, base_policy, teacher):
     distiller = Distiller(
         distill_config(tmp_path, base_policy, teacher, iterations=1, weight_decay=0.5)
@@ -707,3 +725,40 @@ def test_an_offline_regression_saved_before_a_setting_existed_is_the_same_job(
     named = copy.deepcopy(job)  # a setting named away from its default is another job
     named["distill"]["driver_noise"] = 0.3
     assert offline.with_defaults(named) != offline.with_defaults(older)
+
+
+def test_an_offline_regression_stopped_between_chunks_resumes_to_the_same_student(
+    tmp_path, base_policy, teacher, results_script, monkeypatch
+):
+    root = Path(__file__).resolve().parents[2]
+    monkeypatch.syspath_prepend(str(root / "results" / "stage2" / "distill"))  # its siblings
+    offline = results_script("stage2/distill/offline.py")
+    monkeypatch.setattr(offline, "CHECKPOINT_UPDATES", 3)
+    distiller = Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1))
+    distiller.run(False)
+    start = copy.deepcopy(distiller.regression_state())
+    student, settings = distiller.config.student, distiller.config.distill
+    job = {
+        "student": json.loads(config_to_json(student)),
+        "distill": dataclasses.asdict(settings),
+        "sources": [["run", None]],
+        "updates": 5,
+    }
+    whole = offline.regress_resumably(distiller, 5, tmp_path / "whole", job)
+    assert whole.batches == 2  # the last chunk's: updates 4 and 5
+    expected = copy.deepcopy(distiller.student.state_dict())
+    distiller.load_regression_state(copy.deepcopy(start))
+    offline.regress_resumably(distiller, 3, tmp_path / "parts", job)  # stopped after a chunk
+    with torch.no_grad():  # a fresh process: other weights and batches until it resumes
+        for weight in distiller.student.actor.parameters():
+            weight.add_(1.0)
+    distiller.rng = np.random.default_rng(123)
+    resumed = offline.regress_resumably(distiller, 5, tmp_path / "parts", job)
+    assert resumed == whole
+    weights = distiller.student.state_dict()
+    assert weights.keys() == expected.keys()
+    for name, value in weights.items():
+        if isinstance(value, torch.Tensor):
+            torch.testing.assert_close(value, expected[name], rtol=0, atol=0)
+    with pytest.raises(SystemExit, match="other options"):
+        offline.regress_resumably(distiller, 5, tmp_path / "parts", {**job, "updates": 6})

@@ -19,6 +19,7 @@ from clamgen.experiments.config import (
     config_from_json,
     config_to_json,
     load_preset,
+    parse_assignments,
 )
 from clamgen.experiments.train import (
     POLICY_NAME,
@@ -180,6 +181,39 @@ def test_presets_load_and_config_round_trips_through_json():
     with pytest.raises(FileNotFoundError, match="known presets"):
         load_preset("no-such-preset")
     shutil.rmtree(Path("runs/never"), ignore_errors=True)
+
+
+def test_command_line_assignments_are_typed_like_a_preset_and_refused_in_one_line():
+    from clamgen.agents.encoders import EncoderConfig
+    from clamgen.experiments.distill import DistillSettings
+
+    changes = parse_assignments(
+        DistillSettings,
+        ["weight_decay=1", "seed=7", "stop_at_collision=true", "action_loss_kind=absolute"],
+    )
+    assert changes == {
+        "weight_decay": 1.0,
+        "seed": 7,
+        "stop_at_collision": True,
+        "action_loss_kind": "absolute",
+    }
+    assert type(changes["weight_decay"]) is float and type(changes["seed"]) is int
+    assert DistillSettings(**changes).weight_decay == 1.0
+    assert parse_assignments(EncoderConfig, ["strides=[2, 1, 1, 1]"]) == {"strides": (2, 1, 1, 1)}
+    assert parse_assignments(DistillSettings, []) == {}
+    refused = {
+        "weight_decay": "is not FIELD=VALUE",
+        "weight_decay=": "is not FIELD=VALUE",
+        "sead=7": "'sead' is not a DistillSettings field; known: teacher",
+        "weight_decay=x": "weight_decay = 'x': expected a number",
+        "seed=7.5": "seed = 7.5: expected an integer",
+        "stop_at_collision=yes": "expected true or false",
+        "action_loss_kind=cubic": "expected one of 'squared', 'absolute'",
+    }
+    for item, message in refused.items():
+        with pytest.raises(ValueError, match=message) as error:
+            parse_assignments(DistillSettings, [item])
+        assert "\n" not in str(error.value)
 
 
 def test_collision_curriculum_ramps_like_the_paper():

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.config import config_from_json
+from clamgen.experiments.config import config_from_json, parse_assignments
 from clamgen.experiments.distill import STATE_NAME, DistillConfig, Distiller, DistillSettings
 from clamgen.experiments.pooled import data_files, load_pooled
 from clamgen.experiments.stage2 import Stage2Config
@@ -122,16 +122,35 @@ def main() -> None:
     parser.add_argument(
         "--pool-cache", type=Path, default=None, metavar="DIR", help="as offline.py's"
     )
+    parser.add_argument(
+        "--set",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="distill settings to change, as offline.py's (e.g. near_tip_weight=3; the seed, "
+        "the teacher's lookahead and the options above are set by their own flags)",
+    )
     args = parser.parse_args()
     if not 0.0 <= args.new_share < 1.0:
         raise SystemExit(f"--new-share must be in [0, 1), got {args.new_share}")
+    try:
+        changes = parse_assignments(DistillSettings, args.set)
+    except ValueError as error:
+        parser.error(f"--set: {error}")
+    own = sorted(set(changes) & {"lookahead_candidates", "seed"})
+    if own:
+        parser.error(f"--set {', '.join(own)}: taken from --seed and the source run")
+    for name in ("offline.json", "config.json"):
+        if not (args.source / name).is_file():
+            parser.error(f"{args.source} has no {name}: not a student written by offline.py")
     record = json.loads((args.source / "offline.json").read_text())
     if record["relabel"]:
         raise SystemExit(f"{args.source} was regressed on relabelled data: not continued here")
     saved = json.loads((args.source / "config.json").read_text())
     run = Path(record["source"])
     lookahead = json.loads((run / "config.json").read_text())["distill"]["lookahead_candidates"]
-    changes = {"lookahead_candidates": lookahead, "seed": args.seed}
+    changes.update(lookahead_candidates=lookahead, seed=args.seed)
     if args.episodes:
         changes["episodes_per_iteration"] = args.episodes
     if args.driver_noise is not None:
@@ -172,7 +191,7 @@ def main() -> None:
         chunk, stats = distiller.collect_iteration(0.0, iteration, show_progress=True)
         ckpt.save_npz(args.out / "data" / f"iteration{iteration}.npz", chunk)
         distiller.data.add(chunk)
-        loss = distiller.regress(
+        loss, loss_mean, _ = distiller.regress(
             args.updates, iteration, show_progress=True, decay_over=(0, args.updates)
         )
         scores = distiller.validate()
@@ -182,6 +201,7 @@ def main() -> None:
             "pool_states": distiller.data.pool_size,
             **stats,
             "loss": loss,
+            "loss_mean": loss_mean,
             **{f"validation/{k}": v for k, v in scores.items()},
         }
         distiller.history.append(row)
@@ -204,6 +224,7 @@ def main() -> None:
         "new_share": args.new_share,
         "seed": args.seed,
         "driver_noise": settings.driver_noise,
+        "set": args.set,
         "torch_threads": args.torch_threads or student.loop.torch_threads,
         "history": distiller.history,
     }

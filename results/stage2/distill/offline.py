@@ -24,7 +24,8 @@ held in memory beside the mapped images).
 The regression saves its progress to `OUT/offline_progress.pt` every CHECKPOINT_UPDATES
 updates (weights, optimizer, random streams): the same command run again after a kill goes on
 from there (and refuses a progress file of other options); the file is removed once OUT is
-complete.
+complete. `offline.json` holds the last batch's loss (`loss`) and its mean over the last
+chunk's updates (`loss_mean`, over `loss_mean_updates`: the steadier reading).
 """
 
 from __future__ import annotations
@@ -42,12 +43,13 @@ from collisions import CollisionDistiller, load_labels
 from tqdm import tqdm
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.config import config_from_json, config_to_json
+from clamgen.experiments.config import config_from_json, config_to_json, parse_assignments
 from clamgen.experiments.distill import (
     STATE_NAME,
     DistillConfig,
     Distiller,
     DistillSettings,
+    RegressionLoss,
 )
 from clamgen.experiments.pooled import JoinedViews, Rows, file_lengths, load_pooled, subset
 from clamgen.experiments.stage2 import Stage2Config
@@ -83,14 +85,15 @@ def with_defaults(job: dict) -> dict:
 
 def regress_resumably(
     distiller: Distiller, updates: int, out: Path, job: dict, cosine: bool = False
-) -> float | None:
+) -> RegressionLoss:
     """`distiller.regress(updates)` in chunks of CHECKPOINT_UPDATES, its state saved to
     `out/PROGRESS_NAME` after each: run again, it goes on after the last saved chunk (the same
     batches and weights as one uninterrupted run). With `cosine` the learning rate falls from
     the distill `lr` to 0 along one cosine over all `updates`. `job` (JSON values) names the
-    regression; a progress file of another job is refused."""
+    regression; a progress file of another job is refused. Returns the last chunk's
+    `RegressionLoss` (its mean over that chunk's updates)."""
     path = out / PROGRESS_NAME
-    done, loss = 0, None
+    done, loss = 0, RegressionLoss(None, None)
     if path.exists():
         state = ckpt.load_torch(path, kind="offline-progress")
         if with_defaults(state["job"]) != with_defaults(job):
@@ -99,7 +102,9 @@ def regress_resumably(
                 "run the same command, or remove it to start again"
             )
         distiller.load_regression_state(state)
-        done, loss = state["done"], state["loss"]
+        # (progress saved before the chunk's mean was kept has its last batch's loss alone)
+        done = state["done"]
+        loss = RegressionLoss(state["loss"], state.get("loss_mean"), state.get("loss_batches", 0))
         print(f"resumed after {done} of {updates} updates")
     out.mkdir(parents=True, exist_ok=True)
     with tqdm(total=updates, initial=done, desc="offline regression", unit="update") as bar:
@@ -113,12 +118,14 @@ def regress_resumably(
                 "kind": "offline-progress",
                 "job": job,
                 "done": done,
-                "loss": loss,
+                "loss": loss.last,
+                "loss_mean": loss.mean,
+                "loss_batches": loss.batches,
                 **distiller.regression_state(),
             }
             ckpt.save_torch(path, state)
             bar.update(steps)
-            bar.set_postfix(loss=f"{loss:.4f}")
+            bar.set_postfix(loss=f"{loss.mean:.4f}")
     return loss
 
 
@@ -289,6 +296,12 @@ def main() -> None:
     args = parser.parse_args()
     if args.updates < 1:
         parser.error(f"--updates must be at least 1, got {args.updates}")
+    try:
+        changes = parse_assignments(DistillSettings, args.set)
+    except ValueError as error:
+        parser.error(f"--set: {error}")
+    if not (args.run_dir / "config.json").is_file():
+        parser.error(f"{args.run_dir} has no config.json: not a `clamgen distill` run")
     saved = json.loads((args.run_dir / "config.json").read_text())
     student = config_from_json(json.dumps(saved["student"]), Stage2Config)
     student = dataclasses.replace(student, run_dir=args.out)
@@ -332,22 +345,6 @@ def main() -> None:
         agent = dataclasses.replace(student.agent, **agent_changes)
         student = dataclasses.replace(student, agent=agent, env=env)
         saved["student"] = json.loads(config_to_json(student))
-    changes = {}
-    defaults = DistillSettings()
-    for item in args.set:
-        name, _, value = item.partition("=")
-        if not hasattr(defaults, name) or not value:
-            parser.error(f"--set {item}: not FIELD=VALUE with a distill setting's name")
-        kind = type(getattr(defaults, name))
-        if kind is bool:
-            if value.lower() not in ("true", "false"):
-                parser.error(f"--set {item}: {name} is true or false")
-            changes[name] = value.lower() == "true"
-        else:
-            try:
-                changes[name] = kind(value)
-            except ValueError:
-                parser.error(f"--set {item}: {name} takes a {kind.__name__}")
     # No lookahead: nothing is collected, so the teacher only has to load.
     settings = DistillSettings(**{**saved["distill"], **changes, "lookahead_candidates": 0})
     heads = {  # options that regress another head beside the student, and their distillers
@@ -489,7 +486,9 @@ def main() -> None:
         "train_crops": student.agent.train_crops,
         "train_shift_padding": student.agent.train_shift_padding,
         "cosine": args.cosine,
-        "loss": loss,
+        "loss": loss.last,
+        "loss_mean": loss.mean,
+        "loss_mean_updates": loss.batches,
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}
     print(json.dumps(row))

@@ -11,6 +11,7 @@ import json
 import tomllib
 import types
 import typing
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -452,6 +453,29 @@ def _plural(hint: Any) -> str:
     return {int: "integers", float: "numbers", str: "strings", bool: "booleans"}.get(
         hint, f"values ({_describe(hint)})"
     )
+
+
+def parse_assignments(cls: type, items: Iterable[str]) -> dict[str, Any]:
+    """A command line's `FIELD=VALUE` strings (`--set`) as {field: value} for the top-level
+    fields of dataclass `cls`. VALUE is read as a TOML value where it is one (`3`, `0.5`,
+    `true`, `"text"`, `[2, 1]`) and as a bare string otherwise (`absolute`), then checked
+    against the field's type as a preset's value is. A ValueError with a one-line message for
+    an item without `=` or a value, an unknown field, or a value of the wrong type."""
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    changes = {}
+    for item in items:
+        name, equals, text = item.partition("=")
+        if not equals or not text:
+            raise ValueError(f"{item!r} is not FIELD=VALUE")
+        if name not in names:
+            raise ValueError(f"{name!r} is not a {cls.__name__} field; known: {', '.join(names)}")
+        try:
+            value = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError:
+            value = text
+        changes[name] = _convert(hints[name], value, name)
+    return changes
 
 
 def config_to_json(config: TrainConfig) -> str:

@@ -41,7 +41,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, Literal, NamedTuple, get_args
 
 import numpy as np
 import torch
@@ -288,6 +288,15 @@ def student_keys(obs_source: str, previous_action: bool = False) -> tuple[str, .
     return (*keys, "previous_action") if previous_action else keys
 
 
+class RegressionLoss(NamedTuple):
+    """What `Distiller.regress` returns: the imitation loss (with any added heads' losses) of
+    its last batch, and its mean over its `batches` batches (a steadier reading of the fit)."""
+
+    last: float | None
+    mean: float | None
+    batches: int = 0
+
+
 class _Dataset:
     """The aggregated (student input, teacher label) pairs, in growing numpy arrays."""
 
@@ -428,7 +437,9 @@ class Distiller:
             chunk, stats = self.collect_iteration(share, iteration, show_progress)
             ckpt.save_npz(self.run_dir / "data" / f"iteration{iteration}.npz", chunk)
             self.data.add(chunk)
-            loss = self.regress(settings.updates_per_iteration, iteration, show_progress)
+            loss, loss_mean, _ = self.regress(
+                settings.updates_per_iteration, iteration, show_progress
+            )
             scores = self.validate()
             row = {
                 "iteration": iteration,
@@ -436,6 +447,7 @@ class Distiller:
                 "samples": len(self.data),
                 **stats,
                 "loss": loss,
+                "loss_mean": loss_mean,
                 **{f"validation/{k}": v for k, v in scores.items()},
                 "seconds": time.perf_counter() - tic,
             }
@@ -445,6 +457,7 @@ class Distiller:
                 "eval/success_rate": scores["success_rate"],
                 "eval/collision_rate": scores["collision_rate"],
                 "distill/loss": loss,
+                "distill/loss_mean": loss_mean,
                 "distill/rollout_success": stats["rollout_success"],
                 "distill/teacher_success": stats["teacher_success"],
             }
@@ -460,13 +473,14 @@ class Distiller:
         and save the polished student."""
         tic = time.perf_counter()
         steps = self.config.distill.final_updates
-        loss = self.regress(steps, "final", show_progress, decay_over=(0, steps))
+        loss, loss_mean, _ = self.regress(steps, "final", show_progress, decay_over=(0, steps))
         scores = self.validate()
         self.final = {
             "iteration": "final",
             "samples": len(self.data),
             "updates": steps,
             "loss": loss,
+            "loss_mean": loss_mean,
             **{f"validation/{k}": v for k, v in scores.items()},
             "seconds": time.perf_counter() - tic,
         }
@@ -571,16 +585,17 @@ class Distiller:
         iteration: int | str,
         show_progress: bool,
         decay_over: tuple[int, int] | None = None,
-    ) -> float | None:
+    ) -> RegressionLoss:
         """`steps` Adam steps of the imitation loss on random batches of all data. With
         `decay_over=(first, total)` the learning rate falls from `lr` to 0 along a cosine over
         `total` steps, of which these are steps `first`, `first + 1`, ... (`(0, steps)`: over
-        these alone; a long regression run in chunks follows one cosine)."""
+        these alone; a long regression run in chunks follows one cosine). Returns the last
+        batch's loss and the mean over the `steps` batches (None for 0 steps)."""
         batch_size = self.config.student.agent.batch_size
         lr = self.config.distill.lr
         if decay_over is not None and not 0 <= decay_over[0] <= decay_over[1] - steps:
             raise ValueError(f"decay_over {decay_over}: {steps} steps do not fit in it")
-        loss_value = None
+        losses = []
         for step in tqdm(
             range(steps), desc=f"iteration {iteration} regression", disable=not show_progress
         ):
@@ -609,10 +624,12 @@ class Distiller:
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             self.optimizer.step()
-            loss_value = float(loss.detach())
+            losses.append(float(loss.detach()))
         for group in self.optimizer.param_groups:
             group["lr"] = lr
-        return loss_value
+        if not losses:
+            return RegressionLoss(None, None)
+        return RegressionLoss(losses[-1], float(np.mean(losses)), len(losses))
 
     def add_head(self, name: str, build) -> torch.nn.Module:
         """Another head regressed beside the student (for `extra_loss`): `build()` makes it with
