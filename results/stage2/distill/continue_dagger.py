@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from offline import add_settings_option, settings_changes  # (this directory)
 
 from clamgen.experiments import checkpoint as ckpt
-from clamgen.experiments.config import config_from_json, parse_assignments
+from clamgen.experiments.config import config_from_json
 from clamgen.experiments.distill import STATE_NAME, DistillConfig, Distiller, DistillSettings
 from clamgen.experiments.pooled import data_files, load_pooled
 from clamgen.experiments.stage2 import Stage2Config
@@ -122,22 +123,15 @@ def main() -> None:
     parser.add_argument(
         "--pool-cache", type=Path, default=None, metavar="DIR", help="as offline.py's"
     )
-    parser.add_argument(
-        "--set",
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="distill settings to change, as offline.py's (e.g. near_tip_weight=3; the seed, "
-        "the teacher's lookahead and the options above are set by their own flags)",
+    add_settings_option(
+        parser,
+        "e.g. near_tip_weight=3 (the seed, the teacher's lookahead and the options above are "
+        "set by their own flags)",
     )
     args = parser.parse_args()
     if not 0.0 <= args.new_share < 1.0:
         raise SystemExit(f"--new-share must be in [0, 1), got {args.new_share}")
-    try:
-        changes = parse_assignments(DistillSettings, args.set)
-    except ValueError as error:
-        parser.error(f"--set: {error}")
+    changes = settings_changes(parser, args)
     own = sorted(set(changes) & {"lookahead_candidates", "seed"})
     if own:
         parser.error(f"--set {', '.join(own)}: taken from --seed and the source run")

@@ -129,6 +129,26 @@ def regress_resumably(
     return loss
 
 
+def add_settings_option(parser: argparse.ArgumentParser, example: str) -> None:
+    """`--set FIELD=VALUE ...`: distill settings to change (`settings_changes` reads them)."""
+    parser.add_argument(
+        "--set",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="FIELD=VALUE",
+        help=f"distill settings to change, {example} (repeatable)",
+    )
+
+
+def settings_changes(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    """The `--set` items as typed distill settings; a bad one ends the command in one line."""
+    try:
+        return parse_assignments(DistillSettings, args.set)
+    except ValueError as error:
+        parser.error(f"--set: {error}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
@@ -285,21 +305,11 @@ def main() -> None:
         help="memory-map the pooled data from DIR (written there first): jobs on the same "
         "pool share one copy in memory",
     )
-    parser.add_argument(
-        "--set",
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="distill settings to change, e.g. pose_length_scale_m=0.05 (repeatable)",
-    )
+    add_settings_option(parser, "e.g. pose_length_scale_m=0.05")
     args = parser.parse_args()
     if args.updates < 1:
         parser.error(f"--updates must be at least 1, got {args.updates}")
-    try:
-        changes = parse_assignments(DistillSettings, args.set)
-    except ValueError as error:
-        parser.error(f"--set: {error}")
+    changes = settings_changes(parser, args)
     if not (args.run_dir / "config.json").is_file():
         parser.error(f"{args.run_dir} has no config.json: not a `clamgen distill` run")
     saved = json.loads((args.run_dir / "config.json").read_text())
