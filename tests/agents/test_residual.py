@@ -78,7 +78,7 @@ def test_residual_starts_exactly_at_the_base_action_and_base_q():
     np.testing.assert_allclose(
         agent.act(data, deterministic=True), base.act(data, deterministic=True), atol=1e-6
     )
-    low_dim = agent._state(data)
+    low_dim = agent.low_dim_input(data)
     latent, _ = agent.critic.features(agent._visual(data, train=False), low_dim)
     action = torch.zeros(8, 6)
     q = agent._q(agent.critic, agent.base_critic, latent, low_dim, action)
@@ -257,12 +257,12 @@ def test_goal_offset_gives_the_networks_the_tips_offset_to_the_goal():
     plain = ResidualAgent(config(), base_agent())
     data = batch()
     obs = data["obs"]
-    state = agent._state(obs)
+    state = agent.low_dim_input(obs)
     assert state.shape == (8, 9 + 6)
     # The first nine are the paper's normalised joints and goal; the rest depend on both.
-    torch.testing.assert_close(state[:, :9], plain._state(obs))
+    torch.testing.assert_close(state[:, :9], plain.low_dim_input(obs))
     nearer = {**obs, "desired_goal": obs["desired_goal"] + 0.01}
-    assert not torch.allclose(agent._state(nearer)[:, 9:], state[:, 9:])
+    assert not torch.allclose(agent.low_dim_input(nearer)[:, 9:], state[:, 9:])
     assert np.isfinite(agent.update(data)["train/critic_loss"])
     assert agent.act(obs, True).shape == (8, 6)
     with pytest.raises(ValueError, match="goal_offset"):
@@ -329,7 +329,7 @@ def test_acting_by_the_critic_picks_a_candidate_no_worse_than_the_mean():
 
     def q(actions):
         with torch.no_grad():
-            state = agent._state(obs)
+            state = agent.low_dim_input(obs)
             visual = agent.critic.encoder(agent._visual(obs, train=False))
             latent, _ = agent.critic.fuse(visual, state)
             values = agent._q(

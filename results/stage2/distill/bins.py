@@ -133,6 +133,6 @@ class BinPolicy:
         agent = self.agent
         batch = {k: np.asarray(v)[None] for k, v in obs.items()}
         with torch.inference_mode():
-            visual = agent.critic.encoder(agent._visual(batch, train=False))
+            visual = agent.critic.encoder(agent.encoder_input(batch))
             pre_squash = self.head.action(actor_features(agent, batch, visual))
         return np.tanh(pre_squash[0].numpy()).astype(np.float32)

@@ -105,10 +105,10 @@ class ChunkEnsemblePolicy:
         agent = self.agent
         batch = {k: np.asarray(v)[None] for k, v in obs.items()}
         with torch.inference_mode():
-            visual = agent.critic.encoder(agent._visual(batch, train=False))
-            low_dim = agent._actor_view(agent._state(batch))
-            now = agent._pre_squash(visual, low_dim)[0][0]
-            ahead = self.head(agent.actor.features(visual, low_dim))[0]
+            visual = agent.critic.encoder(agent.encoder_input(batch))
+            state = agent.low_dim_input(batch)
+            now = agent.policy_mean(visual, state)[0]
+            ahead = self.head(agent.actor_features(visual, state))[0]
         self.history.append(torch.cat([now[None], ahead]).numpy())  # this step, then ahead
         self.history = self.history[-(self.head.steps + 1) :]
         values, weights = [], []

@@ -54,7 +54,7 @@ class CollisionDistiller(Distiller):
         rows = torch.as_tensor(index)
         actions, collided = self.actions[rows], self.collided[rows]  # (B, K, A), (B, K)
         k = actions.shape[1]
-        features = torch.cat([visual, self.student._state(obs)], -1)
+        features = torch.cat([visual, self.student.low_dim_input(obs)], -1)
         logits = self.collision_head(
             features.repeat_interleave(k, 0), actions.reshape(-1, actions.shape[2])
         )

@@ -75,7 +75,7 @@ def pose_errors(env, agent, head, seeds, scale: float) -> tuple[np.ndarray, np.n
         while not done:
             batch = {k: v[None] for k, v in obs.items()}
             with torch.no_grad():
-                visual = agent.critic.encoder(agent._visual(batch, train=False))
+                visual = agent.critic.encoder(agent.encoder_input(batch))
                 poses = head(visual).view(-1, POSE_SIZE).numpy()
             poses[:, CENTRE] *= scale
             predicted.append(poses)

@@ -485,7 +485,7 @@ class NearTargetBase:
             return self.policy.act(obs)
         batch = {k: np.asarray(v)[None] for k, v in obs.items()}
         with torch.inference_mode():
-            low_dim = self.agent._actor_view(self.agent._state(batch))
+            low_dim = self.agent._actor_view(self.agent.low_dim_input(batch))
             return np.tanh(self.agent._base_mean(low_dim)[0].cpu().numpy())
 
 

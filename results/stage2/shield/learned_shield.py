@@ -90,11 +90,11 @@ def prepare(
             obs = {k: np.asarray(arrays[k][index]) for k in ("observation", "desired_goal")}
             obs["achieved_goal"] = np.asarray(arrays["achieved_goal"][index])
             obs["images"] = np.asarray(arrays["images"][index][:, :views])
-            feats, low_dim, visual = student_features(agent, obs, kind)
+            feats, state, visual = student_features(agent, obs, kind)
             if features is None:
                 features = np.empty((rows, feats.shape[1]), np.float32)
             features[index] = feats.numpy()
-            student[index] = torch.tanh(agent._pre_squash(visual, low_dim)[0]).numpy()
+            student[index] = torch.tanh(agent.policy_mean(visual, state)).numpy()
     teacher = np.tanh(np.asarray(arrays["label"][:rows]))  # labels are pre-squash means
     actions = _actions(student, teacher, np.random.default_rng(SEED))
     collided = np.zeros(actions.shape[:2], bool)

@@ -34,8 +34,8 @@ class Shield:
     def act(self, obs):
         agent, k = self.agent, self.candidates
         batch = {key: np.asarray(value)[None] for key, value in obs.items()}
-        low = agent._state(batch)
-        visual = agent.critic.encoder(agent._visual(batch, train=False))
+        low = agent.low_dim_input(batch)
+        visual = agent.critic.encoder(agent.encoder_input(batch))
         mean, log_std = agent._pre_squash(visual, agent._actor_view(low))
         generator = torch.Generator().manual_seed(0)
         noise = torch.randn((k, mean.shape[-1]), generator=generator)

@@ -623,7 +623,7 @@ class ResidualAgent:
         return self.nets.aux["state"].head
 
     # ------------------------------------------------------------------ inputs
-    def _state(self, obs: Mapping[str, Any]) -> torch.Tensor:
+    def low_dim_input(self, obs: Mapping[str, Any]) -> torch.Tensor:
         """The networks' low-dim input: the true normalised joints + goal (B, 9), then the
         previous action (B, 6) when `config.previous_action`, then the tip's offset to the goal
         (B, 6) when `config.goal_offset`."""
@@ -678,8 +678,8 @@ class ResidualAgent:
             return torch.as_tensor(batch[name], device=device)
 
         return _TrainInputs(
-            state=self._state(batch["obs"]),
-            next_state=self._state(batch["next_obs"]),
+            state=self.low_dim_input(batch["obs"]),
+            next_state=self.low_dim_input(batch["next_obs"]),
             visual_in=self._visual(batch["obs"], train=True),
             next_visual_in=self._visual(batch["next_obs"], train=True),
             # A second, independent random crop of the same images: CURL's positive key
@@ -744,7 +744,7 @@ class ResidualAgent:
         if steps < 1 or batch_size < 1 or not lr > 0:
             raise ValueError(f"need steps, batch_size >= 1 and lr > 0, got {steps, batch_size, lr}")
         images = torch.as_tensor(np.asarray(obs["images"]), device=self.device)
-        states = self._true_state(self._state(obs))
+        states = self._true_state(self.low_dim_input(obs))
         encoder, state_loss = self.critic.encoder, self.nets.aux["state"]
         optimizer = torch.optim.Adam([*encoder.parameters(), *state_loss.parameters()], lr=lr)
         crop = self.config.encoder.image_size
@@ -772,17 +772,34 @@ class ResidualAgent:
         return state.cpu().numpy()
 
     # --------------------------------------------------------------------- act
+    def encoder_input(self, obs: Mapping[str, Any]) -> torch.Tensor:
+        """What the encoder reads of a batch of observations when acting: the centre crops
+        (B, V, 4, S, S) uint8, or the obstacle poses (with the joints, for arm keypoints)."""
+        return self._visual(obs, train=False)
+
+    def policy_mean(self, visual: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """The combined policy's mean before the tanh, (B, A): base + residual on the visual
+        encoding (B, Dv) and the low-dim input `state` (B, S) (`low_dim_input`; the actor reads
+        it as configured, e.g. not at all with `use_low_dim` off)."""
+        return self._pre_squash(visual, self._actor_view(state))[0]
+
+    def actor_features(self, visual: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """What the actor's layers read, (B, Dv + L): the visual encoding beside the actor's
+        projection of the low-dim input (read as `policy_mean` reads it); heads regressed
+        beside a student read it too."""
+        return self.actor.features(visual, self._actor_view(state))
+
     @torch.inference_mode()
     def act(self, obs: Mapping[str, Any], deterministic: bool = False) -> np.ndarray:
         """Action (A,) or (B, A) for one observation or a batch (dict with the low-dim keys and
         `images` (or `obstacles`))."""
         obs, single = _as_batch(obs)
-        low_dim = self._actor_view(self._state(obs))
-        visual = self.critic.encoder(self._visual(obs, train=False))
+        visual = self.critic.encoder(self.encoder_input(obs))
+        state = self.low_dim_input(obs)
         if deterministic:
-            action = torch.tanh(self._pre_squash(visual, low_dim)[0])
+            action = torch.tanh(self.policy_mean(visual, state))
         else:
-            action = self._sample(visual, low_dim)[0]
+            action = self._sample(visual, self._actor_view(state))[0]
         action = action.cpu().numpy()
         return action[0] if single else action
 
@@ -801,9 +818,9 @@ class ResidualAgent:
         worse; candidates farther out let the critic pick a way around (QT-Opt acts by
         sampling Q's argmax, Kalashnikov et al. 2018). One observation or a batch, as `act`."""
         obs, single = _as_batch(obs)
-        state = self._state(obs)
-        visual = self.critic.encoder(self._visual(obs, train=False))
-        mean = self._pre_squash(visual, self._actor_view(state))[0]  # (B, A)
+        visual = self.critic.encoder(self.encoder_input(obs))
+        state = self.low_dim_input(obs)
+        mean = self.policy_mean(visual, state)  # (B, A)
         batch, dims = mean.shape
         noise_draw = torch.randn(
             batch, num_candidates - 1, dims, generator=generator, device=self.device
@@ -827,8 +844,8 @@ class ResidualAgent:
     def mean_action(self, obs: Mapping[str, Any]) -> np.ndarray:
         """The combined policy's mean before the tanh, (B, A), for a batch of observations:
         what a distilled student regresses (`imitation_loss`)."""
-        visual = self.critic.encoder(self._visual(obs, train=False))
-        return self._pre_squash(visual, self._actor_view(self._state(obs)))[0].cpu().numpy()
+        visual = self.critic.encoder(self.encoder_input(obs))
+        return self.policy_mean(visual, self.low_dim_input(obs)).cpu().numpy()
 
     def imitation_loss(
         self,
@@ -845,7 +862,7 @@ class ResidualAgent:
         encoder and the actor (behaviour cloning of a teacher, `clamgen.experiments.distill`)."""
         visual_in = self._visual(obs, train=True)
         visual = self.critic.encoder(visual_in, self._view_mask(len(target_mean)))
-        low_dim = self._actor_view(self._state(obs))
+        low_dim = self._actor_view(self.low_dim_input(obs))
         if isinstance(self.actor.policy, MixtureActor):
             if action_weight:
                 raise ValueError("a mixture actor's imitation loss is pre-squash only")

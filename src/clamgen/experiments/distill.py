@@ -807,7 +807,7 @@ def _config_json(config: DistillConfig) -> str:
 def actor_features(agent, obs: dict, visual: torch.Tensor) -> torch.Tensor:
     """A student's actor features (what heads beside it read, `Distiller.add_head`) of a batch
     of observations `obs`, from their visual encoding `visual`."""
-    return agent.actor.features(visual, agent._actor_view(agent._state(obs)))
+    return agent.actor_features(visual, agent.low_dim_input(obs))
 
 
 def pose_loss(predicted: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:

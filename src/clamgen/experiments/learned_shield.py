@@ -71,15 +71,15 @@ encoding (`feature_dim`), or each view's projection in the encoder's first dense
 def student_features(
     agent, obs: dict, kind: str = "encoding"
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(features (B, D) of `kind` (`FEATURES`) with the normalised joints + goal, the actor's
-    low-dim view, the visual encoding) of a batch of observations, centre crops as when
-    acting; the encoding is the one the student acts on (the same operations)."""
+    """(features (B, D) of `kind` (`FEATURES`) with the normalised joints + goal, the low-dim
+    input, the visual encoding) of a batch of observations, centre crops as when acting; the
+    encoding is the one the student acts on (the same operations)."""
     encoder = agent.critic.encoder
-    projections = encoder.project(encoder.conv_trunk(agent._visual(obs, train=False)))
+    projections = encoder.project(encoder.conv_trunk(agent.encoder_input(obs)))
     visual = encoder.merge_projected(projections)
-    state = agent._state(obs)
+    state = agent.low_dim_input(obs)
     seen = visual if kind == "encoding" else projections.flatten(1)
-    return torch.cat([seen, state], -1), agent._actor_view(state), visual
+    return torch.cat([seen, state], -1), state, visual
 
 
 def shield_candidates(action: np.ndarray) -> np.ndarray:
@@ -110,8 +110,8 @@ class LearnedShieldPolicy:
         self.num_steps += 1
         batch = {k: np.asarray(v)[None] for k, v in obs.items()}
         with torch.inference_mode():
-            features, low_dim, visual = student_features(self.agent, batch, self.reads)
-            action = torch.tanh(self.agent._pre_squash(visual, low_dim)[0])[0].numpy()
+            features, state, visual = student_features(self.agent, batch, self.reads)
+            action = torch.tanh(self.agent.policy_mean(visual, state))[0].numpy()
             if (
                 torch.sigmoid(self.head(features, torch.as_tensor(action[None])))[0]
                 < self.threshold

@@ -251,8 +251,8 @@ class ShieldedStudent:
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         agent = self.agent
         batch = {k: np.asarray(v)[None] for k, v in obs.items() if k != "obstacles"}
-        visual = agent.critic.encoder(agent._visual(batch, train=False))
-        pre = agent._pre_squash(visual, agent._actor_view(agent._state(batch)))[0][0].numpy()
+        visual = agent.critic.encoder(agent.encoder_input(batch))
+        pre = agent.policy_mean(visual, agent.low_dim_input(batch))[0].numpy()
         poses = self.pose_head(visual).view(-1, POSE_SIZE).numpy()
         action = np.tanh(pre)
         self.num_steps += 1
