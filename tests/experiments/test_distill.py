@@ -744,17 +744,17 @@ def test_an_offline_regression_stopped_between_chunks_resumes_to_the_same_studen
         "sources": [["run", None]],
         "updates": 5,
     }
-    whole = offline.regress_resumably(distiller, 5, tmp_path / "whole", job)
-    assert whole.batches == 2  # the last chunk's: updates 4 and 5
+    whole, seconds = offline.regress_resumably(distiller, 5, tmp_path / "whole", job)
+    assert whole.batches == 2 and seconds > 0  # the last chunk's: updates 4 and 5
     expected = copy.deepcopy(distiller.student.state_dict())
     distiller.load_regression_state(copy.deepcopy(start))
-    offline.regress_resumably(distiller, 3, tmp_path / "parts", job)  # stopped after a chunk
+    _, first = offline.regress_resumably(distiller, 3, tmp_path / "parts", job)  # then stopped
     with torch.no_grad():  # a fresh process: other weights and batches until it resumes
         for weight in distiller.student.actor.parameters():
             weight.add_(1.0)
     distiller.rng = np.random.default_rng(123)
-    resumed = offline.regress_resumably(distiller, 5, tmp_path / "parts", job)
-    assert resumed == whole
+    resumed, total = offline.regress_resumably(distiller, 5, tmp_path / "parts", job)
+    assert resumed == whole and total > first  # the first process's time counts too
     weights = distiller.student.state_dict()
     assert weights.keys() == expected.keys()
     for name, value in weights.items():

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -182,6 +183,7 @@ def main() -> None:
         json.dumps({"student": saved["student"], "distill": dataclasses.asdict(settings)}, indent=2)
     )
     for iteration in range(start, args.iterations):
+        tic = time.perf_counter()
         chunk, stats = distiller.collect_iteration(0.0, iteration, show_progress=True)
         ckpt.save_npz(args.out / "data" / f"iteration{iteration}.npz", chunk)
         distiller.data.add(chunk)
@@ -197,6 +199,7 @@ def main() -> None:
             "loss": loss,
             "loss_mean": loss_mean,
             **{f"validation/{k}": v for k, v in scores.items()},
+            "seconds": round(time.perf_counter() - tic, 1),
         }
         distiller.history.append(row)
         print(json.dumps(row), flush=True)

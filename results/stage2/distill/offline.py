@@ -25,7 +25,8 @@ The regression saves its progress to `OUT/offline_progress.pt` every CHECKPOINT_
 updates (weights, optimizer, random streams): the same command run again after a kill goes on
 from there (and refuses a progress file of other options); the file is removed once OUT is
 complete. `offline.json` holds the last batch's loss (`loss`) and its mean over the last
-chunk's updates (`loss_mean`, over `loss_mean_updates`: the steadier reading).
+chunk's updates (`loss_mean`, over `loss_mean_updates`: the steadier reading), and the
+regression's wall time (`regression_seconds`, summed over the processes that ran it).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -85,15 +87,16 @@ def with_defaults(job: dict) -> dict:
 
 def regress_resumably(
     distiller: Distiller, updates: int, out: Path, job: dict, cosine: bool = False
-) -> RegressionLoss:
+) -> tuple[RegressionLoss, float]:
     """`distiller.regress(updates)` in chunks of CHECKPOINT_UPDATES, its state saved to
     `out/PROGRESS_NAME` after each: run again, it goes on after the last saved chunk (the same
     batches and weights as one uninterrupted run). With `cosine` the learning rate falls from
     the distill `lr` to 0 along one cosine over all `updates`. `job` (JSON values) names the
     regression; a progress file of another job is refused. Returns the last chunk's
-    `RegressionLoss` (its mean over that chunk's updates)."""
+    `RegressionLoss` (its mean over that chunk's updates) and the regression's wall time in
+    seconds, summed over the processes that ran it."""
     path = out / PROGRESS_NAME
-    done, loss = 0, RegressionLoss(None, None)
+    done, loss, seconds = 0, RegressionLoss(None, None), 0.0
     if path.exists():
         state = ckpt.load_torch(path, kind="offline-progress")
         if with_defaults(state["job"]) != with_defaults(job):
@@ -103,7 +106,7 @@ def regress_resumably(
             )
         distiller.load_regression_state(state)
         # (progress saved before the chunk's mean was kept has its last batch's loss alone)
-        done = state["done"]
+        done, seconds = state["done"], state.get("seconds", 0.0)
         loss = RegressionLoss(state["loss"], state.get("loss_mean"), state.get("loss_batches", 0))
         print(f"resumed after {done} of {updates} updates")
     out.mkdir(parents=True, exist_ok=True)
@@ -111,8 +114,9 @@ def regress_resumably(
         while done < updates:
             steps = min(CHECKPOINT_UPDATES, updates - done)
             decay_over = (done, updates) if cosine else None
+            tic = time.perf_counter()
             loss = distiller.regress(steps, "offline", show_progress=False, decay_over=decay_over)
-            done += steps
+            done, seconds = done + steps, seconds + time.perf_counter() - tic
             state = {
                 "format": ckpt.FORMAT,
                 "kind": "offline-progress",
@@ -121,12 +125,13 @@ def regress_resumably(
                 "loss": loss.last,
                 "loss_mean": loss.mean,
                 "loss_batches": loss.batches,
+                "seconds": seconds,
                 **distiller.regression_state(),
             }
             ckpt.save_torch(path, state)
             bar.update(steps)
             bar.set_postfix(loss=f"{loss.mean:.4f}")
-    return loss
+    return loss, seconds
 
 
 def add_settings_option(parser: argparse.ArgumentParser, example: str) -> None:
@@ -445,7 +450,7 @@ def main() -> None:
         **({"bins": args.bins} if args.bins else {}),
         **({"cosine": True} if args.cosine else {}),
     }
-    loss = regress_resumably(distiller, args.updates, args.out, job, args.cosine)
+    loss, seconds = regress_resumably(distiller, args.updates, args.out, job, args.cosine)
     scores = distiller.validate()
     payload = distiller.policy_payload("offline")
     payload["offline"] = {
@@ -499,6 +504,7 @@ def main() -> None:
         "loss": loss.last,
         "loss_mean": loss.mean,
         "loss_mean_updates": loss.batches,
+        "regression_seconds": round(seconds, 1),
     }
     row |= {f"validation/{k}": v for k, v in scores.items()}
     print(json.dumps(row))
