@@ -66,10 +66,14 @@ def main() -> None:
     agree = np.zeros(len(tip))
     agree[:-lag] = row_cosine(label[lag:], label[:-lag])
     distance = np.linalg.norm(tip - goal, axis=1)
+
+    def in_band(low: float, high: float) -> np.ndarray:
+        return paired & (distance >= low) & (distance < high)
+
     print(f"{args.pool}: {len(tip)} states, {paired.sum()} with a successor {lag} rows on")
     print("the teacher's labels at a state and its successor (cosine after the tanh):")
     for low, high in BANDS_M:
-        band = paired & (distance >= low) & (distance < high)
+        band = in_band(low, high)
         for name, keep in (
             (f"tip moved under {HOVER_M * 1000:.0f} mm", moved < HOVER_M),
             (f"tip moved over {MOVING_M * 100:.0f} cm", moved > MOVING_M),
@@ -84,12 +88,11 @@ def main() -> None:
     agent = load_policy(args.policy)[0].agent
     rng = np.random.default_rng(0)
     print(f"the student {args.policy} on states of the pool it was regressed on:")
+    near, far = BANDS_M[0], BANDS_M[-1]  # the nearest band's hovers, and the farthest band
     groups = {
-        f"hover 2-5 cm (tip moved under {HOVER_M * 1000:.0f} mm)": paired
-        & (distance >= 0.02)
-        & (distance < 0.05)
+        f"hover {band_name(*near)} (tip moved under {HOVER_M * 1000:.0f} mm)": in_band(*near)
         & (moved < HOVER_M),
-        "over 10 cm": paired & (distance >= 0.10),
+        band_name(*far): in_band(*far),
     }
     for name, rows in groups.items():
         index = np.sort(rng.choice(np.flatnonzero(rows), args.states, replace=False))

@@ -73,10 +73,10 @@ def main() -> None:
     agent = load_policy(args.policy)[0].agent
     rng = np.random.default_rng(0)
     print(f"{args.pool}: {len(distance)} states; student {args.policy}")
+    inputs = [key for key in arrays if key != "label"]
     for low, high in BANDS_M:
         band = np.flatnonzero((distance >= low) & (distance < high))
         index = np.sort(rng.choice(band, min(args.states, len(band)), replace=False))
-        inputs = [key for key in arrays if key != "label"]
         action = student_actions(agent, arrays, inputs, index, BATCH)
         label = np.tanh(np.asarray(arrays["label"][index]))
         lengths = np.linalg.norm(action, axis=1), np.linalg.norm(label, axis=1)
