@@ -5,7 +5,6 @@ import dataclasses
 import itertools
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -706,11 +705,7 @@ def test_driver_noise_moves_the_student_off_its_path_and_the_teacher_labels_wher
         DistillSettings(driver_noise=-0.1)
 
 
-def test_an_offline_regression_saved_before_a_setting_existed_is_the_same_job(
-    results_script, monkeypatch
-):
-    root = Path(__file__).resolve().parents[2]
-    monkeypatch.syspath_prepend(str(root / "results" / "stage2" / "distill"))  # its siblings
+def test_an_offline_regression_saved_before_a_setting_existed_is_the_same_job(results_script):
     offline = results_script("stage2/distill/offline.py")
     student = json.loads(config_to_json(load_preset("residual-cpu", Stage2Config)))
     settings = dataclasses.asdict(DistillSettings(teacher="teacher.pt", seed=8))
@@ -730,8 +725,6 @@ def test_an_offline_regression_saved_before_a_setting_existed_is_the_same_job(
 def test_an_offline_regression_stopped_between_chunks_resumes_to_the_same_student(
     tmp_path, base_policy, teacher, results_script, monkeypatch
 ):
-    root = Path(__file__).resolve().parents[2]
-    monkeypatch.syspath_prepend(str(root / "results" / "stage2" / "distill"))  # its siblings
     offline = results_script("stage2/distill/offline.py")
     monkeypatch.setattr(offline, "CHECKPOINT_UPDATES", 3)
     distiller = Distiller(distill_config(tmp_path, base_policy, teacher, iterations=1))
