@@ -755,3 +755,28 @@ def test_an_offline_regression_stopped_between_chunks_resumes_to_the_same_studen
             torch.testing.assert_close(value, expected[name], rtol=0, atol=0)
     with pytest.raises(SystemExit, match="other options"):
         offline.regress_resumably(distiller, 5, tmp_path / "parts", {**job, "updates": 6})
+
+
+@pytest.mark.parametrize(
+    ("flags", "named"),
+    [
+        (["--set", "seed=3"], "seed"),
+        (["--set", "lookahead_candidates=4"], "lookahead_candidates"),
+        (["--driver-noise", "0.2", "--set", "driver_noise=0.3"], "driver_noise"),
+        (["--episodes", "8", "--set", "episodes_per_iteration=4"], "episodes_per_iteration"),
+    ],
+)
+def test_a_continuation_refuses_a_setting_given_twice(
+    tmp_path, results_script, capsys, flags, named
+):
+    continuation = results_script("stage2/distill/continue_dagger.py")
+    with pytest.raises(SystemExit):
+        continuation.main([str(tmp_path), str(tmp_path / "out"), "--seed", "9", *flags])
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"--set {named}: " in message and "give each once" in message
+    # Given once, by either route, it passes to the next check: the source must be a student.
+    alone = [flag for flag in flags if flag.startswith("--set") or "=" in flag]
+    if named not in ("seed", "lookahead_candidates"):
+        with pytest.raises(SystemExit):
+            continuation.main([str(tmp_path), str(tmp_path / "out"), "--seed", "9", *alone])
+        assert "not a student written by offline.py" in capsys.readouterr().err

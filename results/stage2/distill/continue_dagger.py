@@ -103,7 +103,24 @@ class Continuation(Distiller):
         return np.concatenate([old, new])
 
 
-def main() -> None:
+FLAG_WORDS = (
+    "set by --seed, --episodes or --driver-noise, or taken from the source run (the "
+    "lookahead); give each once"
+)
+
+
+def flag_changes(args: argparse.Namespace) -> dict:
+    """The distill settings this script's own flags set: the seed always, the episodes per
+    iteration and the driver's noise where given (`--set` may not name them again)."""
+    changes = {"seed": args.seed}
+    if args.episodes:
+        changes["episodes_per_iteration"] = args.episodes
+    if args.driver_noise is not None:
+        changes["driver_noise"] = args.driver_noise
+    return changes
+
+
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("source", type=Path, help="a student written by offline.py")
     parser.add_argument("out", type=Path)
@@ -129,13 +146,15 @@ def main() -> None:
         "e.g. near_tip_weight=3 (the seed, the teacher's lookahead and the options above are "
         "set by their own flags)",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if not 0.0 <= args.new_share < 1.0:
         raise SystemExit(f"--new-share must be in [0, 1), got {args.new_share}")
     changes = settings_changes(parser, args)
-    own = sorted(set(changes) & {"lookahead_candidates", "seed"})
-    if own:
-        parser.error(f"--set {', '.join(own)}: taken from --seed and the source run")
+    given = flag_changes(args)
+    twice = sorted(set(changes) & (set(given) | {"lookahead_candidates"}))
+    if twice:
+        parser.error(f"--set {', '.join(twice)}: {FLAG_WORDS}")
+    changes.update(given)
     for name in ("offline.json", "config.json"):
         if not (args.source / name).is_file():
             parser.error(f"{args.source} has no {name}: not a student written by offline.py")
@@ -145,11 +164,7 @@ def main() -> None:
     saved = json.loads((args.source / "config.json").read_text())
     run = Path(record["source"])
     lookahead = json.loads((run / "config.json").read_text())["distill"]["lookahead_candidates"]
-    changes.update(lookahead_candidates=lookahead, seed=args.seed)
-    if args.episodes:
-        changes["episodes_per_iteration"] = args.episodes
-    if args.driver_noise is not None:
-        changes["driver_noise"] = args.driver_noise
+    changes["lookahead_candidates"] = lookahead
     try:
         settings = DistillSettings(**{**saved["distill"], **changes})
     except ValueError as error:
