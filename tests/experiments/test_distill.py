@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import torch
 from test_stage2 import LOOP, image_config
-from test_train import tiny_config
 
 from clamgen.agents.residual import imitation_error
 from clamgen.experiments.config import config_to_json, load_preset
@@ -27,15 +26,8 @@ from clamgen.experiments.lookahead import LookaheadPolicy
 from clamgen.experiments.policies import load_policy
 from clamgen.experiments.stage2 import Stage2Config, Stage2Trainer
 from clamgen.experiments.sweep import read_validation
-from clamgen.experiments.train import POLICY_NAME, Trainer
+from clamgen.experiments.train import POLICY_NAME
 from clamgen.replay import ReplayConfig
-
-
-@pytest.fixture(scope="module")
-def base_policy(tmp_path_factory):
-    config = tiny_config(tmp_path_factory.mktemp("base") / "run", total=80)
-    Trainer(config).run(show_progress=False)
-    return str(config.run_dir / POLICY_NAME)
 
 
 def privileged_config(run_dir, base_policy) -> Stage2Config:

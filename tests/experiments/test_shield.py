@@ -4,7 +4,7 @@ true poses."""
 
 import numpy as np
 import pytest
-from test_distill import base_policy, distill_config, teacher  # noqa: F401 (fixtures)
+from test_distill import distill_config, teacher  # noqa: F401 (fixtures)
 
 from clamgen.envs import ReachEnv
 from clamgen.envs.reach_env import MAX_JOINT_DELTA_RAD
@@ -77,7 +77,7 @@ def test_clearance_falls_when_a_step_heads_into_an_obstacle():
 
 def test_a_shielded_student_on_true_poses_never_touches_an_obstacle(
     tmp_path,
-    base_policy,  # noqa: F811
+    base_policy,
     teacher,  # noqa: F811
 ):
     config = distill_config(tmp_path, base_policy, teacher, iterations=1)

@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-from test_train import tiny_config
 
 from clamgen.agents.aux_losses import AuxLossConfig
 from clamgen.agents.encoders import EncoderConfig
@@ -17,17 +16,9 @@ from clamgen.experiments.stage2 import (
     load_residual_agent,
     residual_stage,
 )
-from clamgen.experiments.train import POLICY_NAME, Trainer
+from clamgen.experiments.train import POLICY_NAME
 from clamgen.replay import ReplayConfig
 from clamgen.schedules import LinearRamp
-
-
-@pytest.fixture(scope="module")
-def base_policy(tmp_path_factory):
-    config = tiny_config(tmp_path_factory.mktemp("base") / "run", total=80)
-    Trainer(config).run(show_progress=False)
-    return str(config.run_dir / POLICY_NAME)
-
 
 LOOP = LoopConfig(
     total_env_steps=240,
