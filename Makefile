@@ -43,6 +43,7 @@ bench: install
 	$(PY) benchmarks/render.py --quality pretty
 	$(PY) benchmarks/reset_cost.py
 	$(PY) benchmarks/act_latency.py
+	$(PY) benchmarks/act_paths.py
 	$(PY) benchmarks/first_act.py
 	$(PY) benchmarks/encoder_cost.py --sizes 84 64 56 --batches 128 64 --shared yes --threads 1
 	$(PY) benchmarks/update_cost.py --baseline-rev e63de27

@@ -56,6 +56,7 @@ from clamgen.agents.encoders import (
     MultiViewEncoder,
     view_dropout_mask,
 )
+from clamgen.agents.fast_act import ResidualActing
 from clamgen.agents.geometry import (
     NUM_ARM_KEYPOINTS,
     NUM_GOAL_OFFSET_FEATURES,
@@ -549,6 +550,10 @@ class ResidualAgent:
         self._generator = torch.Generator(self.device).manual_seed(config.seed)
         self.num_updates = 0
         self._choose_variant()
+        self.fast_act = ResidualActing.build(self)
+        """The deterministic action for one observation in plain calls
+        (`clamgen.agents.fast_act`: the same action, faster between renders), or None to act
+        through the modules only."""
 
     def _choose_variant(self) -> None:
         """Pick, once, the pieces in which the variants differ."""
@@ -794,6 +799,8 @@ class ResidualAgent:
         """Action (A,) or (B, A) for one observation or a batch (dict with the low-dim keys and
         `images` (or `obstacles`))."""
         obs, single = _as_batch(obs)
+        if deterministic and single and self.fast_act is not None:
+            return self.fast_act(obs)[0]
         visual = self.critic.encoder(self.encoder_input(obs))
         state = self.low_dim_input(obs)
         if deterministic:
