@@ -204,8 +204,8 @@ def test_train_residual_refuses_a_wrong_base_policy(workdir, base, expected):
 
 
 # ------------------------------------------------------------------- eval and render
-def test_eval_and_render_list_the_valid_policies(workdir):
-    for command in ("eval", "render"):
+def test_eval_render_and_view_list_the_valid_policies(workdir):
+    for command in ("eval", "render", "view"):
         message = refused(workdir, command, "--policy", "nosuch")
         assert (
             "--policy 'nosuch' not found; choose one of base, residual-3views, "

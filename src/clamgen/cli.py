@@ -1216,6 +1216,7 @@ def view(config) -> dict:
     from clamgen.experiments.checkpoint import CheckpointError
     from clamgen.experiments.viewer import view as run_viewer
 
+    _check_policy(config.policy)
     env_id = _policy_env_id(config.policy)
     if env_id not in ENV_IDS:
         raise SystemExit(
