@@ -11,8 +11,9 @@ every variant it takes).
 Why: acting in an episode, the policy runs right after the env rendered its views, and the
 renderer has filled the CPU's caches with its own code and data. There every Python-level layer
 of the module path costs several times what it costs when repeated warm: on a 2-core AVX2 EPYC,
-the shipped 3-view policy's act measured about 3.2 ms median between renders through the
-modules against 2.6 ms here, interleaved in the same episodes (`benchmarks/act_paths.py`).
+the shipped 3-view policy's act took 3.00 ms median between renders through the modules against
+2.50 ms here, interleaved in the same episodes (`benchmarks/act_paths.py`,
+`results/benchmarks/act_paths.csv`).
 Like `clamgen.agents.networks.NumpyActor` for the joint policy, this exists for speed only.
 
 Variants it does not take (a mixture actor, obstacle poses instead of images, bf16 convs,
