@@ -7,6 +7,7 @@ import pytest
 import torch
 from test_residual import base_agent, batch, config
 
+from clamgen.agents.encoders import EMULATED_BF16_ENV
 from clamgen.agents.fast_act import ResidualActing
 from clamgen.agents.residual import ResidualAgent
 
@@ -47,9 +48,14 @@ def single_observations(count: int, seed: int):
     return [{key: value[i] for key, value in data.items()} for i in range(count)]
 
 
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_the_fast_act_is_the_module_paths_action_bit_for_bit(variant):
-    agent = perturbed_agent(**VARIANTS[variant])
+@pytest.mark.parametrize("variant", [*VARIANTS, "bf16 convs"])
+def test_the_fast_act_is_the_module_paths_action_bit_for_bit(variant, monkeypatch):
+    if variant == "bf16 convs":  # as on a CPU that computes bf16 (emulated here, same maths)
+        monkeypatch.setenv(EMULATED_BF16_ENV, "1")
+        settings = {"encoder": dataclasses.replace(ENCODER, bf16_autocast=True)}
+    else:
+        settings = VARIANTS[variant]
+    agent = perturbed_agent(**settings)
     fast = agent.fast_act
     assert isinstance(fast, ResidualActing)
     for obs in single_observations(4, seed=len(variant)):

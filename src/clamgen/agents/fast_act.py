@@ -16,9 +16,11 @@ the shipped 3-view policy's act took 3.00 ms median between renders through the 
 `results/benchmarks/act_paths.csv`).
 Like `clamgen.agents.networks.NumpyActor` for the joint policy, this exists for speed only.
 
-Variants it does not take (a mixture actor, obstacle poses instead of images, bf16 convs,
-convs in chunks smaller than the views, a device other than the CPU) act through the modules:
-`ResidualActing.build` returns None for them.
+Variants it does not take (a mixture actor, obstacle poses instead of images, convs in chunks
+smaller than the views, a device other than the CPU) act through the modules:
+`ResidualActing.build` returns None for them. Where the convs run in bf16
+(`EncoderConfig.bf16_autocast` on a CPU that computes it), they do here too, under the same
+autocast.
 """
 
 from __future__ import annotations
@@ -77,8 +79,6 @@ class ResidualActing:
         if not isinstance(encoder, MultiViewEncoder) or type(agent.actor.policy) is not Actor:
             return None
         enc = encoder.config
-        if enc.bf16_autocast and bf16_enabled("cpu"):
-            return None
         if enc.cpu_conv_chunk is not None and enc.cpu_conv_chunk < enc.num_views:
             return None
         convs = [m for trunk in encoder.trunks for m in trunk if isinstance(m, nn.Conv2d)]
@@ -108,11 +108,16 @@ class ResidualActing:
         view dropped: (1, feature_dim)."""
         cfg = encoder.config
 
+        bf16 = cfg.bf16_autocast and bf16_enabled(images.device.type)
+
         def trunk_features(trunk: nn.Sequential, views: torch.Tensor) -> torch.Tensor:
-            x = to_unit_float(views)
+            x = to_unit_float(views, torch.bfloat16 if bf16 else torch.float32)
             if cfg.channels_last:
                 x = x.contiguous(memory_format=torch.channels_last)
-            return run_layers(trunk, x).float().flatten(1)
+            if not bf16:  # no autocast context where it would be off: its entry costs too
+                return run_layers(trunk, x).float().flatten(1)
+            with torch.autocast(x.device.type, dtype=torch.bfloat16):
+                return run_layers(trunk, x).float().flatten(1)
 
         if cfg.share_view_weights:
             features = trunk_features(encoder.trunks[0], images.flatten(0, 1))
