@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from clamgen.agents.augment import center_crop, edge_pad, random_crop
 from clamgen.agents.encoders import (
+    EMULATED_BF16_ENV,
     EncoderConfig,
     LowDimEncoder,
     MultiViewEncoder,
@@ -110,6 +111,30 @@ def test_chunked_convs_match_one_call(shared: bool) -> None:
     chunked = make_encoder(dataclasses.replace(config, cpu_conv_chunk=2))
     images = random_images(TINY, 5)
     torch.testing.assert_close(chunked.conv_trunk(images), one_call.conv_trunk(images))
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {},
+        {"share_view_weights": False},
+        {"channels_last": False},
+        {"spatial_softmax": True, "image_size": 32},  # 9 x 9 keypoint maps
+        {"bf16_autocast": True},  # emulated here (the same maths as in hardware)
+    ],
+    ids=["shared", "per-view", "nchw", "keypoints", "bf16"],
+)
+def test_the_convs_without_grad_give_the_module_calls_features_bit_for_bit(
+    changes: dict, monkeypatch
+) -> None:
+    monkeypatch.setenv(EMULATED_BF16_ENV, "1")
+    encoder = make_encoder(dataclasses.replace(TINY, **changes))
+    images = random_images(encoder.config, 2)
+    with torch.no_grad():  # plain functional calls (`run_layers`)
+        plain = encoder(images), encoder.conv_trunk(images)
+    modules = encoder(images).detach(), encoder.conv_trunk(images).detach()  # module calls
+    for got, expected in zip(plain, modules, strict=True):
+        assert torch.equal(got, expected)
 
 
 @pytest.mark.parametrize("shared", [True, False])

@@ -34,6 +34,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from clamgen.agents.networks import run_layers
+
 __all__ = [
     "EncoderConfig",
     "LowDimEncoder",
@@ -287,9 +289,14 @@ class MultiViewEncoder(nn.Module):
             x = to_unit_float(images)
         if cfg.channels_last:
             x = x.contiguous(memory_format=torch.channels_last)
-        with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=bf16):
-            features = trunk(x)
-        return features.float().flatten(1)
+        # Without grad (acting, targets) as plain calls, and no autocast context where it would
+        # be off: between an env's renders, with the caches cold, each module call and the
+        # context's entry cost about as much as a small conv (`clamgen.agents.fast_act`).
+        layers = trunk if torch.is_grad_enabled() else functools.partial(run_layers, trunk)
+        if not bf16:
+            return layers(x).float().flatten(1)
+        with torch.autocast(x.device.type, dtype=torch.bfloat16):
+            return layers(x).float().flatten(1)
 
     def project(self, view_features: torch.Tensor) -> torch.Tensor:
         """W_v f_v for each view, the first dense layer's per-view part: (B, V, F) ->

@@ -29,6 +29,28 @@ def mlp(input_dim: int, hidden_sizes: tuple[int, ...], output_dim: int) -> nn.Se
     return nn.Sequential(*layers)
 
 
+def run_layers(layers: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
+    """`layers(x)` without grad, its Linear, Conv2d (zero padding) and ReLU layers as plain
+    functional calls, any other layer as a module call: the same values without the modules'
+    per-call overhead, which dominates small layers acting between an env's renders
+    (`clamgen.agents.fast_act`). The ReLU is applied in place, on the previous layer's fresh
+    output."""
+    for layer in layers:
+        kind = type(layer)
+        if kind is nn.Linear:
+            x = F.linear(x, layer.weight, layer.bias)
+        elif kind is nn.Conv2d and layer.padding_mode == "zeros":
+            x = F.conv2d(
+                x, layer.weight, layer.bias, layer.stride, layer.padding, layer.dilation,
+                layer.groups,
+            )  # fmt: skip
+        elif kind is nn.ReLU:
+            x = torch.relu_(x)
+        else:
+            x = layer(x)
+    return x
+
+
 def tanh_gaussian_sample(
     mean: torch.Tensor, log_std: torch.Tensor, generator: torch.Generator | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
